@@ -1,0 +1,66 @@
+#!/usr/bin/env bash
+# One-shot, idempotent setup for policy-composer on a fresh Debian bookworm machine (run as root).
+#  1. System packages: Mesa >= 24.3 (lavapipe, SAPIEN's CPU Vulkan renderer) from bookworm-backports,
+#     FFmpeg libraries (torchcodec decoding), Chromium (the report's browser test).
+#  2. Python: a virtual environment in .venv with the pinned packages and the project (editable).
+# A second run checks stamps and finishes in seconds.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+ROOT=$(pwd)
+VENV="$ROOT/.venv"
+PY=${PYTHON:-python3}
+
+log() { printf '\033[1m[setup]\033[0m %s\n' "$*"; }
+
+mesa_ok() {
+  local v
+  v=$(dpkg-query -W -f='${Version}' mesa-vulkan-drivers 2>/dev/null || true)
+  [ -n "$v" ] && dpkg --compare-versions "$v" ge 24.3
+}
+
+system_packages() {
+  local need=()
+  mesa_ok || need+=(mesa)
+  dpkg-query -W -f='${Status}' ffmpeg 2>/dev/null | grep -q "ok installed" || need+=(ffmpeg)
+  dpkg-query -W -f='${Status}' chromium 2>/dev/null | grep -q "ok installed" || need+=(chromium)
+  if [ ${#need[@]} -eq 0 ]; then log "system packages present"; return; fi
+  if [ "$(id -u)" != 0 ]; then
+    echo "setup: system packages missing (${need[*]}); run this script as root" >&2; exit 1
+  fi
+  if ! grep -rqs "bookworm-backports" /etc/apt/sources.list /etc/apt/sources.list.d/; then
+    # Reuse the machine's own Debian mirror rather than hard-coding one.
+    local uri
+    uri=$(grep -hE '^URIs:' /etc/apt/sources.list.d/*.sources 2>/dev/null | grep -v security | head -n1 | awk '{print $2}')
+    [ -n "$uri" ] || uri=$(grep -hE '^deb ' /etc/apt/sources.list 2>/dev/null | grep -v security | head -n1 | awk '{print $2}')
+    [ -n "$uri" ] || { echo "setup: cannot find the machine's Debian mirror in /etc/apt" >&2; exit 1; }
+    log "enabling bookworm-backports from $uri"
+    cat > /etc/apt/sources.list.d/bookworm-backports.sources <<SRC
+Types: deb
+URIs: $uri
+Suites: bookworm-backports
+Components: main
+Signed-By: /usr/share/keyrings/debian-archive-keyring.gpg
+SRC
+  fi
+  log "apt-get install: ${need[*]}"
+  export DEBIAN_FRONTEND=noninteractive
+  apt-get update -qq
+  apt-get install -y -qq -t bookworm-backports mesa-vulkan-drivers libvulkan1 >/dev/null
+  apt-get install -y -qq ffmpeg chromium >/dev/null
+  mesa_ok || { echo "setup: mesa-vulkan-drivers >= 24.3 did not install" >&2; exit 1; }
+}
+
+python_packages() {
+  local stamp="$VENV/.setup-stamp" want
+  want=$(cat pyproject.toml scripts/setup.sh | sha256sum | cut -c1-16)
+  if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then log "virtual environment up to date"; return; fi
+  [ -x "$VENV/bin/python" ] || "$PY" -m venv "$VENV"
+  "$VENV/bin/python" -m pip install -q --upgrade pip uv
+  log "installing Python packages into .venv (first time: several minutes, torch is large)"
+  VIRTUAL_ENV="$VENV" "$VENV/bin/uv" pip install --python "$VENV/bin/python" -e ".[test]"
+  echo "$want" > "$stamp"
+}
+
+system_packages
+python_packages
+log "done: activate with 'source .venv/bin/activate'"

@@ -1,0 +1,261 @@
+"""GearAssembly-v1: put a compound gear on a peg module held by the other arm (the paper's PR2 task).
+
+Two Panda arms face each other across a table. The left arm (``agent.agents[0]``) picks the gear up
+from the table, carries it to the peg and inserts it. The right arm (``agent.agents[1]``) holds the peg
+module (base plate + vertical peg) rigidly in its hand, at a pose that varies per episode, as the PR2
+held the peg module in its other hand. Cameras: ``head`` (fixed, over the whole workspace) and
+``left_forearm`` / ``right_forearm`` (on each hand, seeing its gripper and what it holds).
+
+Randomisation per seed: the gear's x, y and yaw on the table, the right arm's configuration (so the
+peg's position and yaw), and small noise on the left arm's start configuration.
+
+Success: the gear seated on the peg (axes aligned within ``ALIGN_TOL_DEG``, the gear down at the base
+plate). ``evaluate`` also gives the subtask flags and an integer ``stage`` (0 pick, 1 move, 2 insert,
+3 done) used as labels by the datasets and by evaluation.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+import sapien
+import torch
+from transforms3d.euler import euler2quat
+
+from mani_skill.agents.multi_agent import MultiAgent
+from mani_skill.envs.sapien_env import BaseEnv
+from mani_skill.envs.utils.randomization.pose import random_quaternions
+from mani_skill.sensors.camera import CameraConfig
+from mani_skill.utils import sapien_utils
+from mani_skill.utils.registration import register_env
+from mani_skill.utils.scene_builder.table import TableSceneBuilder
+from mani_skill.utils.structs.pose import Pose
+
+from tasks import panda_light  # noqa: F401  (registers the "panda_light" agent)
+from tasks.gear_geometry import GearSpec, build_gear, build_peg_module
+
+CAMERA_NAMES = ("head", "left_forearm", "right_forearm")
+SUPPORTED_ROBOTS = (("panda_light", "panda_light"), ("panda", "panda"))
+SUPPORTED_CONTROL_MODES = ("pd_joint_pos", "pd_joint_delta_pos")
+ARM_JOINTS = tuple(f"panda_joint{i}" for i in range(1, 8))
+# observation.state: both arms' joint angles and gripper widths, in this order.
+STATE_NAMES = tuple(
+    [f"left_{j}" for j in ARM_JOINTS] + ["left_gripper_width"]
+    + [f"right_{j}" for j in ARM_JOINTS] + ["right_gripper_width"]
+)
+# action (flat form): per arm 7 joint targets and 1 gripper target (finger position, -0.01..0.04 m).
+ACTION_NAMES = tuple(
+    [f"left_{j}" for j in ARM_JOINTS] + ["left_gripper"] + [f"right_{j}" for j in ARM_JOINTS] + ["right_gripper"]
+)
+
+LEFT_BASE = sapien.Pose(p=[0.0, -0.7, 0.0], q=euler2quat(0, 0, np.pi / 2))
+RIGHT_BASE = sapien.Pose(p=[0.0, 0.7, 0.0], q=euler2quat(0, 0, -np.pi / 2))
+REST_QPOS = np.array([0.0, np.pi / 8, 0.0, -np.pi * 5 / 8, 0.0, np.pi * 3 / 4, np.pi / 4, 0.04, 0.04])
+# The left arm starts retracted above its own side of the table, hand down, clear of the peg.
+LEFT_START_QPOS = np.array([0.0, -0.25, 0.0, -2.55, 0.0, 2.30, np.pi / 4, 0.04, 0.04])
+HEAD_EYE, HEAD_TARGET = [0.35, -0.10, 0.70], [0.0, -0.10, 0.05]
+# Forearm cameras ride beside each hand (hand frame, z towards the fingers), looking at the fingertips
+# and what they hold: the left one from the +x side (the gear), the right one from -x (the plate and peg).
+FOREARM_VIEWS = {"left": ([0.12, 0.0, 0.05], [0.0, 0.0, 0.13]), "right": ([-0.12, 0.0, 0.05], [0.05, 0.0, 0.13])}
+GEAR_XY_CENTER = (0.0, -0.30)
+GEAR_XY_RANGE = (0.10, 0.06)  # half-ranges of the gear's uniform position on the table
+PLATE_GRIP = 0.024  # right finger position holding the plate
+ALIGN_TOL_DEG = 8.0
+SEATED_TOL = 0.004  # gear bottom at most this far above the plate
+LIFT_HEIGHT = 0.03
+PRE_INSERT_RADIUS = 0.015
+PRE_INSERT_HEIGHT = 0.06
+
+
+@register_env("GearAssembly-v1", max_episode_steps=400)
+class GearAssemblyEnv(BaseEnv):
+    """Bimanual gear assembly: the left Panda puts the gear on the peg the right Panda holds."""
+
+    SUPPORTED_ROBOTS = list(SUPPORTED_ROBOTS)
+    agent: MultiAgent
+
+    def __init__(
+        self,
+        *args,
+        robot_uids: tuple[str, str] = ("panda_light", "panda_light"),
+        control_mode: str = "pd_joint_pos",
+        cameras: Sequence[str] = CAMERA_NAMES,
+        camera_width: int = 128,
+        camera_height: int = 128,
+        clearance: float = 0.002,
+        robot_init_qpos_noise: float = 0.02,
+        **kwargs,
+    ):
+        robot_uids = tuple(robot_uids) if not isinstance(robot_uids, str) else robot_uids
+        if robot_uids not in SUPPORTED_ROBOTS:
+            raise ValueError(f"GearAssembly-v1 does not support robot_uids={robot_uids!r}; choose one of {list(SUPPORTED_ROBOTS)}")
+        if control_mode not in SUPPORTED_CONTROL_MODES:
+            raise ValueError(f"GearAssembly-v1 does not support control_mode={control_mode!r}; choose one of {list(SUPPORTED_CONTROL_MODES)}")
+        unknown = [c for c in cameras if c not in CAMERA_NAMES]
+        if unknown or len(set(cameras)) != len(cameras):
+            raise ValueError(f"unknown or repeated camera names {unknown or list(cameras)}; valid cameras are {list(CAMERA_NAMES)}")
+        for name, value in (("camera_width", camera_width), ("camera_height", camera_height)):
+            if not isinstance(value, (int, np.integer)) or value <= 0:
+                raise ValueError(f"{name}={value!r}: the camera resolution must be a positive integer (default 128)")
+        self.camera_names = tuple(cameras)
+        self.camera_size = (int(camera_width), int(camera_height))
+        self.gear_spec = GearSpec(clearance=clearance)
+        self.robot_init_qpos_noise = robot_init_qpos_noise
+        super().__init__(*args, robot_uids=robot_uids, control_mode=control_mode, **kwargs)
+
+    # ---------------------------------------------------------------- configuration
+    @property
+    def _default_sensor_configs(self):
+        w, h = self.camera_size
+        configs = {
+            "head": lambda: CameraConfig("head", sapien_utils.look_at(eye=HEAD_EYE, target=HEAD_TARGET),
+                                         w, h, np.deg2rad(60), 0.01, 100),
+        }
+        for i, side in enumerate(("left", "right")):
+            configs[f"{side}_forearm"] = (lambda i=i, side=side: CameraConfig(
+                f"{side}_forearm", sapien_utils.look_at(*FOREARM_VIEWS[side], up=[0, 0, -1]), w, h, np.deg2rad(80),
+                0.01, 100, mount=self.agent.agents[i].robot.links_map["panda_hand"]))
+        return [configs[name]() for name in self.camera_names]
+
+    @property
+    def _default_human_render_camera_configs(self):
+        pose = sapien_utils.look_at(eye=[0.9, -0.5, 0.6], target=[0.0, -0.05, 0.1])
+        return CameraConfig("render_camera", pose, 512, 512, 1, 0.01, 10)
+
+    # ---------------------------------------------------------------- loading
+    def _load_agent(self, options: dict):
+        super()._load_agent(options, [LEFT_BASE, RIGHT_BASE])
+
+    def _load_scene(self, options: dict):
+        self.table_scene = TableSceneBuilder(env=self, robot_init_qpos_noise=0)
+        self.table_scene.build()
+        self.gear = build_gear(self.scene, self.gear_spec)
+        self.peg_module = build_peg_module(self.scene, self.gear_spec)
+        # Peg module in the right TCP frame: flipped (TCP z points down) and shifted so the hand grips the
+        # plate's end while the peg stands `peg_offset` beside the fingers.
+        hz = self.gear_spec.plate_half_size[2]
+        self._tcp_to_module = Pose.create_from_pq(p=[self.gear_spec.peg_offset, 0.0, -hz], q=[0.0, 1.0, 0.0, 0.0], device=self.device)
+
+    # ---------------------------------------------------------------- episodes
+    def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
+        with torch.device(self.device):
+            b = len(env_idx)
+            self.table_scene.initialize(env_idx)
+            left, right = self.agent.agents
+            left.robot.set_pose(LEFT_BASE)
+            right.robot.set_pose(RIGHT_BASE)
+
+            qpos = torch.as_tensor(LEFT_START_QPOS, dtype=torch.float32).repeat(b, 1)
+            qpos[:, :7] += torch.randn((b, 7)) * self.robot_init_qpos_noise
+            left.reset(qpos)
+
+            # Right arm: hand pointing straight down (q6 = q2 - q4), so the peg stands vertical.
+            rq = torch.as_tensor(REST_QPOS, dtype=torch.float32).repeat(b, 1)
+            rq[:, 0] = (torch.rand(b) * 2 - 1) * 0.20
+            rq[:, 1] = 0.25 + torch.rand(b) * 0.25
+            rq[:, 3] = -2.05 + (torch.rand(b) * 2 - 1) * 0.15
+            rq[:, 5] = rq[:, 1] - rq[:, 3]
+            rq[:, 6] = np.pi / 4 + (torch.rand(b) * 2 - 1) * 0.35
+            rq[:, 7:] = PLATE_GRIP
+            right.reset(rq)
+
+            xyz = torch.zeros((b, 3))
+            xyz[:, 0] = GEAR_XY_CENTER[0] + (torch.rand(b) * 2 - 1) * GEAR_XY_RANGE[0]
+            xyz[:, 1] = GEAR_XY_CENTER[1] + (torch.rand(b) * 2 - 1) * GEAR_XY_RANGE[1]
+            self.gear.set_pose(Pose.create_from_pq(p=xyz, q=random_quaternions(b, lock_x=True, lock_y=True)))
+            self._refresh_kinematics()
+            self._attach_peg_module()
+
+    def _refresh_kinematics(self):
+        if self.gpu_sim_enabled:  # link poses follow qpos only after a GPU kinematics update
+            self.scene._gpu_apply_all()
+            self.scene.px.gpu_update_articulation_kinematics()
+            self.scene._gpu_fetch_all()
+
+    def _attach_peg_module(self):
+        self.peg_module.set_pose(self.agent.agents[1].tcp.pose * self._tcp_to_module)
+
+    def _after_control_step(self):
+        # The peg module is rigidly attached to the right hand: follow it if the right arm moves.
+        self._attach_peg_module()
+
+    # ---------------------------------------------------------------- state
+    @property
+    def left_arm(self):
+        return self.agent.agents[0]
+
+    @property
+    def right_arm(self):
+        return self.agent.agents[1]
+
+    @property
+    def peg_top(self) -> Pose:
+        """The peg's top centre (z along the peg)."""
+        return self.peg_module.pose * Pose.create_from_pq(p=[0, 0, self.gear_spec.peg_height], device=self.device)
+
+    def gear_in_peg_frame(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """Gear origin in the peg-module frame (x, y radial; z above the plate) and the cosine between axes."""
+        rel = self.peg_module.pose.inv() * self.gear.pose
+        axis_cos = rel.to_transformation_matrix()[..., 2, 2]
+        return rel.p, axis_cos
+
+    def joint_state(self) -> torch.Tensor:
+        """observation.state: [left 7 joints, left gripper width, right 7 joints, right gripper width]."""
+        parts = []
+        for arm in self.agent.agents:
+            q = arm.robot.get_qpos()
+            parts += [q[:, :7], q[:, 7:9].sum(-1, keepdim=True)]
+        return torch.cat(parts, dim=-1)
+
+    def flat_to_dict_action(self, action: torch.Tensor | np.ndarray) -> dict:
+        """Split a flat 16-D action (see ACTION_NAMES) into the per-arm dict ManiSkill expects."""
+        action = torch.as_tensor(action, dtype=torch.float32, device=self.device)
+        if action.shape[-1] != len(ACTION_NAMES):
+            raise ValueError(f"flat action has {action.shape[-1]} values; GearAssembly-v1 expects {len(ACTION_NAMES)} ({', '.join(ACTION_NAMES)})")
+        uids = list(self.agent.agents_dict.keys())
+        return {uids[0]: action[..., :8], uids[1]: action[..., 8:]}
+
+    def hold_action(self) -> torch.Tensor:
+        """A flat action that keeps both arms at their current joint targets."""
+        parts = []
+        for arm in self.agent.agents:
+            arm_target = arm.controller.controllers["arm"]._target_qpos
+            grip_target = arm.controller.controllers["gripper"]._target_qpos[..., :1]
+            parts += [arm_target, grip_target]
+        return torch.cat(parts, dim=-1)
+
+    # ---------------------------------------------------------------- evaluation
+    def evaluate(self) -> dict[str, Any]:
+        rel_p, axis_cos = self.gear_in_peg_frame()
+        radial = torch.linalg.norm(rel_p[:, :2], dim=-1)
+        height = rel_p[:, 2]
+        peg_h = self.gear_spec.peg_height
+        grasped = self.left_arm.is_grasping(self.gear)
+        lifted = grasped & (self.gear.pose.p[:, 2] > LIFT_HEIGHT)
+        aligned = axis_cos > np.cos(np.deg2rad(ALIGN_TOL_DEG))
+        at_peg = grasped & (radial < PRE_INSERT_RADIUS) & (height >= peg_h - 0.003) & (height <= peg_h + PRE_INSERT_HEIGHT) \
+            & (axis_cos > np.cos(np.deg2rad(15)))
+        inserted = (radial < self.gear_spec.hole_radius + 0.0015) & (height < peg_h - 0.003) & (height > -0.005)
+        success = inserted & aligned & (height < SEATED_TOL)
+        stage = torch.where(success, 3, torch.where(at_peg | inserted, 2, torch.where(lifted, 1, 0)))
+        return dict(success=success, gear_grasped=grasped, gear_lifted=lifted, gear_at_peg=at_peg,
+                    gear_inserted=inserted, stage=stage, radial_offset=radial, height_above_base=height)
+
+    def _get_obs_extra(self, info: dict):
+        obs = dict(state=self.joint_state(), tcp_pose=self.left_arm.tcp.pose.raw_pose)
+        if "state" in self.obs_mode:
+            obs.update(gear_pose=self.gear.pose.raw_pose, peg_top_pose=self.peg_top.raw_pose)
+        return obs
+
+    def compute_dense_reward(self, obs: Any, action: torch.Tensor, info: dict):
+        tcp_to_gear = torch.linalg.norm(self.gear.pose.p - self.left_arm.tcp.pose.p, dim=-1)
+        reward = 1 - torch.tanh(5 * tcp_to_gear)
+        gear_to_peg = torch.linalg.norm(self.gear.pose.p - self.peg_top.p, dim=-1)
+        reward += info["gear_grasped"] * (1 + (1 - torch.tanh(5 * gear_to_peg)))
+        reward += info["gear_at_peg"] + 2 * info["gear_inserted"]
+        reward[info["success"]] = 6.0
+        return reward
+
+    def compute_normalized_dense_reward(self, obs: Any, action: torch.Tensor, info: dict):
+        return self.compute_dense_reward(obs, action, info) / 6.0
