@@ -44,7 +44,8 @@ STATE_NAMES = tuple(
     [f"left_{j}" for j in ARM_JOINTS] + ["left_gripper_width"]
     + [f"right_{j}" for j in ARM_JOINTS] + ["right_gripper_width"]
 )
-# action (flat form): per arm 7 joint targets and 1 gripper target (finger position, -0.01..0.04 m).
+# action (flat form): per arm 7 joint targets (rad) and 1 gripper command in [-1, 1] (ManiSkill's Panda maps
+# it linearly to a finger target of -0.01..0.04 m: -1 closes with force, 1 opens).
 ACTION_NAMES = tuple(
     [f"left_{j}" for j in ARM_JOINTS] + ["left_gripper"] + [f"right_{j}" for j in ARM_JOINTS] + ["right_gripper"]
 )
@@ -221,8 +222,9 @@ class GearAssemblyEnv(BaseEnv):
         parts = []
         for arm in self.agent.agents:
             arm_target = arm.controller.controllers["arm"]._target_qpos
-            grip_target = arm.controller.controllers["gripper"]._target_qpos[..., :1]
-            parts += [arm_target, grip_target]
+            gripper = arm.controller.controllers["gripper"]
+            low, high = gripper.config.lower, gripper.config.upper
+            parts += [arm_target, 2 * (gripper._target_qpos[..., :1] - low) / (high - low) - 1]
         return torch.cat(parts, dim=-1)
 
     # ---------------------------------------------------------------- evaluation
