@@ -103,6 +103,8 @@ class GearAssemblyEnv(BaseEnv):
         self.camera_size = (int(camera_width), int(camera_height))
         self.gear_spec = GearSpec(clearance=clearance)
         self.robot_init_qpos_noise = robot_init_qpos_noise
+        # Without CUDA, render on the CPU (lavapipe) directly instead of warning and falling back.
+        kwargs.setdefault("render_backend", "gpu" if torch.cuda.is_available() else "cpu")
         super().__init__(*args, robot_uids=robot_uids, control_mode=control_mode, **kwargs)
 
     # ---------------------------------------------------------------- configuration

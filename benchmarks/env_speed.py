@@ -1,0 +1,57 @@
+"""Env steps/s of GearAssembly-v1 (state only; three cameras) against ManiSkill's PickCube-v1 with its camera.
+
+Run: python benchmarks/env_speed.py [--steps 200]
+All figures come from the same process, so ratios hold on a noisy machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import gymnasium as gym
+import mani_skill.envs  # noqa: F401
+import torch
+
+import tasks  # noqa: F401
+
+
+def steps_per_second(env, action_fn, steps: int) -> float:
+    env.reset(seed=0)
+    for _ in range(10):  # warm-up
+        env.step(action_fn())
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        env.step(action_fn())
+    return steps / (time.perf_counter() - t0)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--steps", type=int, default=200)
+    parser.add_argument("--stock", action="store_true", help="also time two stock (undecimated) Pandas with three cameras")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+
+    ref = gym.make("PickCube-v1", obs_mode="rgb", render_backend="cpu")
+    zero = torch.zeros(ref.action_space.shape)
+    ref_sps = steps_per_second(ref, lambda: zero, args.steps)
+    ref.close()
+    print(f"reference PickCube-v1, 1 camera 128x128: {ref_sps:.1f} steps/s")
+
+    configs = [("state only", dict(obs_mode="state_dict")),
+               ("3 cameras 128x128", dict(obs_mode="rgb"))]
+    if args.stock:
+        configs.append(("3 cameras 128x128, stock Panda meshes", dict(obs_mode="rgb", robot_uids=("panda", "panda"))))
+    for label, kwargs in configs:
+        env = gym.make("GearAssembly-v1", **kwargs)
+        u = env.unwrapped
+        env.reset(seed=0)
+        hold = u.flat_to_dict_action(u.hold_action())
+        sps = steps_per_second(env, lambda: hold, args.steps)
+        print(f"GearAssembly-v1, {label}: {sps:.1f} steps/s ({sps / ref_sps:.2f}x PickCube-v1)")
+        env.close()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,55 @@
+"""Running a policy in GearAssembly-v1: one episode at a time, with optional camera frames."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Protocol
+
+import numpy as np
+import torch
+
+
+class Policy(Protocol):
+    """Anything that gives the next flat 16-D action of GearAssembly-v1 (see tasks.gear_assembly.ACTION_NAMES)."""
+
+    name: str
+
+    def reset(self, seed: int | None = None) -> None: ...
+
+    def act(self, obs) -> torch.Tensor: ...
+
+    @property
+    def done(self) -> bool: ...
+
+
+@dataclass
+class EpisodeResult:
+    seed: int
+    success: bool
+    steps: int
+    stage: int
+    frames: list[np.ndarray] = field(default_factory=list)
+
+
+def tile_cameras(obs: dict, cameras: tuple[str, ...]) -> np.ndarray:
+    """The camera images of env 0 side by side (H x (W * n) x 3, uint8)."""
+    return np.concatenate([obs["sensor_data"][c]["rgb"][0].cpu().numpy() for c in cameras], axis=1)
+
+
+def run_episode(env, policy: Policy, seed: int, max_steps: int | None = None, record_frames: bool = False,
+                on_step: Callable[[int, dict], None] | None = None) -> EpisodeResult:
+    """Reset with `seed`, run `policy` until it is done or `max_steps`, and report the final evaluation."""
+    u = env.unwrapped
+    obs, info = env.reset(seed=seed)
+    policy.reset(seed)
+    max_steps = max_steps or getattr(env.spec, "max_episode_steps", None) or 400
+    frames = [tile_cameras(obs, u.camera_names)] if record_frames else []
+    steps = 0
+    while steps < max_steps and not policy.done:
+        obs, _, _, _, info = env.step(u.flat_to_dict_action(policy.act(obs)))
+        steps += 1
+        if record_frames:
+            frames.append(tile_cameras(obs, u.camera_names))
+        if on_step is not None:
+            on_step(steps, info)
+    return EpisodeResult(seed=seed, success=bool(info["success"][0]), steps=steps, stage=int(info["stage"][0]), frames=frames)
