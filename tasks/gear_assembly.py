@@ -108,18 +108,18 @@ class GearAssemblyEnv(BaseEnv):
         super().__init__(*args, robot_uids=robot_uids, control_mode=control_mode, **kwargs)
 
     # ---------------------------------------------------------------- configuration
+    def _camera_config(self, name: str) -> CameraConfig:
+        w, h = self.camera_size
+        if name == "head":
+            return CameraConfig("head", sapien_utils.look_at(eye=HEAD_EYE, target=HEAD_TARGET), w, h, np.deg2rad(60), 0.01, 100)
+        side = name.removesuffix("_forearm")
+        arm = self.agent.agents[0 if side == "left" else 1]
+        return CameraConfig(name, sapien_utils.look_at(*FOREARM_VIEWS[side], up=[0, 0, -1]), w, h, np.deg2rad(80), 0.01, 100,
+                            mount=arm.robot.links_map["panda_hand"])
+
     @property
     def _default_sensor_configs(self):
-        w, h = self.camera_size
-        configs = {
-            "head": lambda: CameraConfig("head", sapien_utils.look_at(eye=HEAD_EYE, target=HEAD_TARGET),
-                                         w, h, np.deg2rad(60), 0.01, 100),
-        }
-        for i, side in enumerate(("left", "right")):
-            configs[f"{side}_forearm"] = (lambda i=i, side=side: CameraConfig(
-                f"{side}_forearm", sapien_utils.look_at(*FOREARM_VIEWS[side], up=[0, 0, -1]), w, h, np.deg2rad(80),
-                0.01, 100, mount=self.agent.agents[i].robot.links_map["panda_hand"]))
-        return [configs[name]() for name in self.camera_names]
+        return [self._camera_config(name) for name in self.camera_names]
 
     @property
     def _default_human_render_camera_configs(self):

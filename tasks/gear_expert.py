@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import sapien
 import torch
+from transforms3d.quaternions import mat2quat
 
 from tasks.gear_assembly import GearAssemblyEnv
 
@@ -34,12 +35,6 @@ class ExpertConfig:
     insert_step: float = 0.004  # descent per control step while inserting (m)
     release_height: float = 0.012  # gear bottom above the plate when the gripper opens (m)
     seed: int | None = None  # grasp-offset RNG; None: drawn from the env's episode seed
-
-
-def _quat_from_matrix(m: np.ndarray) -> np.ndarray:
-    from transforms3d.quaternions import mat2quat
-
-    return mat2quat(m)
 
 
 class GearAssemblyExpert:
@@ -98,7 +93,7 @@ class GearAssemblyExpert:
         z = np.array([0.0, 0.0, -1.0])
         x = plate_dir
         y = np.cross(z, x)
-        self._cmd_q = _quat_from_matrix(np.stack([x, y, z], axis=1))
+        self._cmd_q = mat2quat(np.stack([x, y, z], axis=1))
         self._cmd_p = self._np(env.left_arm.tcp.pose.p)
         spec = env.gear_spec
         gear = self._gear_world_p()
