@@ -21,7 +21,8 @@ def _make_env(obs_mode: str, args: argparse.Namespace):
 def _expert(env, args: argparse.Namespace):
     from tasks.gear_expert import ExpertConfig, GearAssemblyExpert
 
-    return GearAssemblyExpert(env, ExpertConfig(grasp_offset=args.grasp_offset / 1000.0))
+    return GearAssemblyExpert(env, ExpertConfig(grasp_offset=args.grasp_offset / 1000.0,
+                                                closed_loop=not getattr(args, "open_loop", False)))
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -64,7 +65,8 @@ def cmd_evaluate_expert(args: argparse.Namespace) -> int:
         if not run_episode(env, expert, seed).success:
             failures.append(seed)
     n = args.episodes
-    print(f"expert full-task success: {n - len(failures)}/{n} = {100 * (n - len(failures)) / n:.1f}% "
+    mode = "open-loop insertion" if args.open_loop else "closed-loop insertion"
+    print(f"expert ({mode}) full-task success: {n - len(failures)}/{n} = {100 * (n - len(failures)) / n:.1f}% "
           f"(grasp offset up to {args.grasp_offset:g} mm, clearance {args.clearance:g} mm, {time.time() - t0:.0f} s)")
     if failures:
         print(f"failed seeds: {failures}")
@@ -93,6 +95,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev_expert = ev_sub.add_parser("expert", help="full-task success of the scripted expert")
     env_options(ev_expert)
     ev_expert.add_argument("--episodes", type=int, default=50)
+    ev_expert.add_argument("--open-loop", action="store_true",
+                           help="carry and insert assuming a centred grasp (shows why insertion needs feedback)")
     ev_expert.set_defaults(func=cmd_evaluate_expert)
     return parser
 

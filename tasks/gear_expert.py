@@ -35,6 +35,7 @@ class ExpertConfig:
     insert_step: float = 0.004  # descent per control step while inserting (m)
     release_height: float = 0.012  # gear bottom above the plate when the gripper opens (m)
     seed: int | None = None  # grasp-offset RNG; None: drawn from the env's episode seed
+    closed_loop: bool = True  # False: carry and insert assume a centred grasp (what an open-loop planner knows)
 
 
 class GearAssemblyExpert:
@@ -75,7 +76,10 @@ class GearAssemblyExpert:
         return sapien.Pose(self._cmd_p, self._cmd_q), dist
 
     def _gear_world_p(self) -> np.ndarray:
-        return self._np(self.env.gear.pose.p)
+        """The true gear position (privileged) closed loop; open loop, where a centred grasp would put it."""
+        if self.config.closed_loop or self.phase in ("approach", "descend"):
+            return self._np(self.env.gear.pose.p)
+        return self._np(self.env.left_arm.tcp.pose.p) - [0.0, 0.0, self._grasp_height]
 
     # ------------------------------------------------------------------ episode
     def reset(self, seed: int | None = None) -> None:
@@ -97,7 +101,8 @@ class GearAssemblyExpert:
         self._cmd_p = self._np(env.left_arm.tcp.pose.p)
         spec = env.gear_spec
         gear = self._gear_world_p()
-        self._grasp_p = gear + x * self.grasp_offset + np.array([0, 0, spec.ring_thickness + 0.7 * spec.top_thickness])
+        self._grasp_height = spec.ring_thickness + 0.7 * spec.top_thickness
+        self._grasp_p = gear + x * self.grasp_offset + np.array([0, 0, self._grasp_height])
         self._hold = self._np(env.hold_action())
 
     def act(self, obs=None) -> torch.Tensor:
@@ -133,8 +138,9 @@ class GearAssemblyExpert:
             if np.linalg.norm(error) < 2e-3:
                 self.phase = "insert"
         elif self.phase == "insert":
-            rel = self._np(env.gear_in_peg_frame()[0])
-            peg_rot = self._np(env.peg_module.pose.to_transformation_matrix()[..., :3, :3])
+            peg = self._np(env.peg_module.pose.to_transformation_matrix())
+            peg_rot = peg[:3, :3]
+            rel = peg_rot.T @ (self._gear_world_p() - peg[:3, 3])
             # Correct the radial error (peg frame -> world) and go down; release low on the peg.
             lateral = -0.5 * peg_rot @ np.append(rel[:2], 0.0)
             down = np.array([0, 0, -cfg.insert_step]) if np.linalg.norm(rel[:2]) < spec.clearance else np.zeros(3)

@@ -30,3 +30,12 @@ def test_grasp_offset_varies_within_its_bound(state_env):
 
 def test_phase_names_are_ordered():
     assert PHASES[0] == "approach" and PHASES[-1] == "done"
+
+
+def test_open_loop_insertion_fails_when_the_grasp_offset_exceeds_the_clearance(state_env):
+    """Seed 3 draws a ~10 mm grasp offset (clearance 2 mm): closed loop seats the gear, open loop does not."""
+    open_loop = GearAssemblyExpert(state_env, ExpertConfig(closed_loop=False))
+    result = run_episode(state_env, open_loop, 3)
+    assert abs(open_loop.grasp_offset) > 4 * state_env.unwrapped.gear_spec.clearance
+    assert not result.success
+    assert run_episode(state_env, GearAssemblyExpert(state_env), 3).success
