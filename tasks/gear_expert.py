@@ -57,9 +57,6 @@ class GearAssemblyExpert:
     def _np(self, x: torch.Tensor) -> np.ndarray:
         return x[0].detach().cpu().numpy().astype(np.float64)
 
-    def _tcp_world(self) -> sapien.Pose:
-        return sapien.Pose(self._np(self.env.left_arm.tcp.pose.p), self._np(self.env.left_arm.tcp.pose.q))
-
     def _ik_joint_targets(self, target: sapien.Pose) -> np.ndarray:
         base = sapien.Pose(self._np(self.env.left_arm.robot.pose.p), self._np(self.env.left_arm.robot.pose.q))
         qpos, ok, _ = self._ik.compute_inverse_kinematics(
