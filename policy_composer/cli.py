@@ -30,7 +30,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     import imageio
     from tqdm import tqdm
 
-    from policy_composer.rollout import run_episode
+    from policy_composer.rollout import episode_limit, run_episode
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -38,7 +38,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     expert = _expert(env, args)
     successes = 0
     for seed in range(args.seed, args.seed + args.episodes):
-        bar = tqdm(total=getattr(env.spec, "max_episode_steps", 400), desc=f"expert seed {seed}", unit="step", leave=False)
+        bar = tqdm(total=episode_limit(env), desc=f"expert seed {seed}", unit="step", leave=False)
         result = run_episode(env, expert, seed, record_frames=True, on_step=lambda *_: bar.update())
         bar.close()
         video = out / f"expert_seed{seed}.mp4"

@@ -36,13 +36,18 @@ def tile_cameras(obs: dict, cameras: tuple[str, ...]) -> np.ndarray:
     return np.concatenate([obs["sensor_data"][c]["rgb"][0].cpu().numpy() for c in cameras], axis=1)
 
 
+def episode_limit(env) -> int:
+    """The env's registered step limit (GearAssembly-v1: 400)."""
+    return getattr(env.spec, "max_episode_steps", None) or 400
+
+
 def run_episode(env, policy: Policy, seed: int, max_steps: int | None = None, record_frames: bool = False,
                 on_step: Callable[[int, dict], None] | None = None) -> EpisodeResult:
     """Reset with `seed`, run `policy` until it is done or `max_steps`, and report the final evaluation."""
     u = env.unwrapped
     obs, info = env.reset(seed=seed)
     policy.reset(seed)
-    max_steps = max_steps or getattr(env.spec, "max_episode_steps", None) or 400
+    max_steps = max_steps or episode_limit(env)
     frames = [tile_cameras(obs, u.camera_names)] if record_frames else []
     steps = 0
     while steps < max_steps and not policy.done:
