@@ -74,6 +74,43 @@ def cmd_evaluate_expert(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_record(args: argparse.Namespace) -> int:
+    """Record a recipe's dataset (see datasets/recipes/) into a LeRobotDataset."""
+    from policy_composer.recording.catalog import format_summary, summarize
+    from policy_composer.recording.recipes import load_recipe
+    from policy_composer.recording.record import EnvSettings, record_recipe
+
+    recipe = load_recipe(args.recipe)
+    root = Path(args.root) if args.root else Path("datasets") / recipe.name
+    try:
+        record_recipe(recipe, root, episodes=args.episodes, seed=args.seed, resume=args.resume,
+                      settings=EnvSettings(resolution=args.resolution, clearance_mm=args.clearance))
+    except KeyboardInterrupt:
+        print(f"\ninterrupted: every finished episode is saved in {root}; continue with --resume", file=sys.stderr)
+        return 130
+    print(format_summary(summarize(root)))
+    return 0
+
+
+def cmd_dataset_info(args: argparse.Namespace) -> int:
+    from policy_composer.recording.catalog import format_summary, summarize
+
+    print(format_summary(summarize(args.path)))
+    return 0
+
+
+def cmd_dataset_push(args: argparse.Namespace) -> int:
+    from policy_composer.recording.catalog import HubUnreachable, push_dataset
+
+    try:
+        url = push_dataset(args.path, args.repo_id, private=args.private, branch=args.branch)
+    except (HubUnreachable, ValueError) as e:
+        print(f"push failed: {e}", file=sys.stderr)
+        return 2
+    print(f"pushed {args.path} to {url}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="policy-composer", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -98,13 +135,44 @@ def build_parser() -> argparse.ArgumentParser:
     ev_expert.add_argument("--open-loop", action="store_true",
                            help="carry and insert assuming a centred grasp (shows why insertion needs feedback)")
     ev_expert.set_defaults(func=cmd_evaluate_expert)
+
+    record = sub.add_parser("record", help="record a dataset recipe (datasets/recipes/) into a LeRobotDataset")
+    record.add_argument("recipe", help="recipe name (gear-insertion-demos, gear-full-task-demos, "
+                                       "gear-controller-rollouts) or path of a .toml recipe")
+    record.add_argument("--episodes", type=int, default=None, help="episodes the dataset should hold (default: the recipe's)")
+    record.add_argument("--root", default=None, help="dataset folder (default: datasets/RECIPE)")
+    record.add_argument("--resume", action="store_true", help="continue an interrupted or shorter recording")
+    record.add_argument("--resolution", type=int, default=128, help="camera width and height in pixels")
+    record.add_argument("--clearance", type=float, default=2.0, help="radial clearance between peg and hole, mm")
+    record.add_argument("--seed", type=int, default=0, help="first seed (with --resume: the dataset's next one)")
+    record.set_defaults(func=cmd_record)
+
+    dataset = sub.add_parser("dataset", help="inspect and share recorded LeRobot datasets")
+    ds_sub = dataset.add_subparsers(dest="what", required=True)
+    info = ds_sub.add_parser("info", help="episodes, frames, features, cameras, fps, success rate")
+    info.add_argument("path")
+    info.set_defaults(func=cmd_dataset_info)
+    push = ds_sub.add_parser("push", help="upload to the Hugging Face Hub with LeRobotDataset.push_to_hub")
+    push.add_argument("path")
+    push.add_argument("--repo-id", required=True, help="USER/NAME of the Hub dataset repo")
+    push.add_argument("--private", action="store_true")
+    push.add_argument("--branch", default=None)
+    push.set_defaults(func=cmd_dataset_push)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    os.environ.setdefault("HF_HUB_OFFLINE", "1")
+    from policy_composer.recording.features import DatasetError
+    from policy_composer.recording.recipes import RecipeError
+
     args = build_parser().parse_args(argv)
-    return args.func(args)
+    if args.func is not cmd_dataset_push:  # everything but an upload works offline
+        os.environ.setdefault("HF_HUB_OFFLINE", "1")
+    try:
+        return args.func(args)
+    except (DatasetError, RecipeError, FileExistsError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

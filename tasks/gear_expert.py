@@ -36,6 +36,11 @@ class ExpertConfig:
     release_height: float = 0.012  # gear bottom above the plate when the gripper opens (m)
     seed: int | None = None  # grasp-offset RNG; None: drawn from the env's episode seed
     closed_loop: bool = True  # False: carry and insert assume a centred grasp (what an open-loop planner knows)
+    # Teleoperator style (for demonstrations): arrive above the peg off by up to `arrival_error`, pause a
+    # random while, then correct with a per-episode gain and speed while the hand wobbles (`wobble`, m).
+    teleop: bool = False
+    arrival_error: float = 0.008
+    wobble: float = 0.0008
 
 
 class GearAssemblyExpert:
@@ -101,6 +106,13 @@ class GearAssemblyExpert:
         self._grasp_height = spec.ring_thickness + 0.7 * spec.top_thickness
         self._grasp_p = gear + x * self.grasp_offset + np.array([0, 0, self._grasp_height])
         self._hold = self._np(env.hold_action())
+        self._rng = rng
+        if cfg.teleop:
+            self._arrival = np.append(rng.uniform(-cfg.arrival_error, cfg.arrival_error, 2), rng.uniform(0.0, 0.01))
+            self._pause, self._gain, self._speed = int(rng.integers(0, 10)), rng.uniform(0.25, 0.6), rng.uniform(0.6, 1.2)
+        else:
+            self._arrival, self._pause, self._gain, self._speed = np.zeros(3), 0, 0.5, 1.0
+        self._drift = np.zeros(3)
 
     def act(self, obs=None) -> torch.Tensor:
         """The next flat 16-D action (left arm moves, right arm holds)."""
@@ -130,17 +142,22 @@ class GearAssemblyExpert:
         elif self.phase == "carry":
             # Closed loop: move the *measured* gear above the peg axis.
             peg_top = self._np(env.peg_top.p)
-            error = peg_top + [0, 0, cfg.carry_clearance] - self._gear_world_p()
+            error = peg_top + [0, 0, cfg.carry_clearance] + self._arrival - self._gear_world_p()
             target, _ = self._toward(self._cmd_p + 0.5 * error, cfg.max_step)
             if np.linalg.norm(error) < 2e-3:
-                self.phase = "insert"
+                self.phase, self._timer = "insert", 0
+        elif self.phase == "insert" and self._timer <= self._pause:
+            target = sapien.Pose(self._cmd_p, self._cmd_q)  # the operator looks before moving
         elif self.phase == "insert":
+            if cfg.teleop:  # a hand that wobbles: slow random drift that the closed loop keeps correcting
+                self._drift = 0.8 * self._drift + self._rng.normal(0.0, cfg.wobble, 3) * [1, 1, 0.5]
+                self._cmd_p = self._cmd_p + self._drift * 0.2
             peg = self._np(env.peg_module.pose.to_transformation_matrix())
             peg_rot = peg[:3, :3]
             rel = peg_rot.T @ (self._gear_world_p() - peg[:3, 3])
             # Correct the radial error (peg frame -> world) and go down; release low on the peg.
-            lateral = -0.5 * peg_rot @ np.append(rel[:2], 0.0)
-            down = np.array([0, 0, -cfg.insert_step]) if np.linalg.norm(rel[:2]) < spec.clearance else np.zeros(3)
+            lateral = -self._gain * peg_rot @ np.append(rel[:2], 0.0)
+            down = np.array([0, 0, -cfg.insert_step * self._speed]) if np.linalg.norm(rel[:2]) < spec.clearance else np.zeros(3)
             target, _ = self._toward(self._cmd_p + lateral + down, cfg.max_step)
             if rel[2] < cfg.release_height:
                 self.phase, self._timer = "release", 0

@@ -1,0 +1,103 @@
+"""What a GearAssembly-v1 LeRobot dataset holds, and the checks a consumer runs before it trusts one.
+
+Every consumer (the CNN policy, the VAE, the dynamics models, the goal scorers) opens its dataset through
+`open_dataset`, so a wrong path, a missing camera or a feature of the wrong shape fails at once with an
+error that names the dataset, what is missing and what was expected, not deep inside a training loop.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from tasks.gear_assembly import ACTION_NAMES, CAMERA_NAMES, STATE_NAMES
+
+FORMAT_VERSION = "v3.0"  # lerobot 0.4.4's dataset format
+SIDECAR = "meta/policy_composer.json"  # recipe, seeds, success and controller names per episode
+
+
+def image_key(camera: str) -> str:
+    return f"observation.images.{camera}"
+
+
+def dataset_features(cameras: tuple[str, ...] = CAMERA_NAMES, resolution: int = 128) -> dict[str, dict]:
+    """LeRobot feature spec of a recording: camera videos, joint state, action and the per-frame labels."""
+    unknown = set(cameras) - set(CAMERA_NAMES)
+    if unknown:
+        raise ValueError(f"unknown camera(s) {sorted(unknown)}; GearAssembly-v1 has {list(CAMERA_NAMES)}")
+    features = {
+        image_key(c): {"dtype": "video", "shape": (resolution, resolution, 3), "names": ["height", "width", "channels"]}
+        for c in cameras
+    }
+    features.update({
+        "observation.state": {"dtype": "float32", "shape": (len(STATE_NAMES),), "names": list(STATE_NAMES)},
+        "action": {"dtype": "float32", "shape": (len(ACTION_NAMES),), "names": list(ACTION_NAMES)},
+        # frame_index / (T - 1) in a successful episode, -1 in a failed one: the goal score's target.
+        "progress": {"dtype": "float32", "shape": (1,), "names": None},
+        # GearAssemblyEnv.evaluate()["stage"] of the observed state: 0 pick, 1 move, 2 insert, 3 done.
+        "stage": {"dtype": "int64", "shape": (1,), "names": None},
+        # Index into the sidecar's "controllers" list: which controller produced this frame's action.
+        "controller": {"dtype": "int64", "shape": (1,), "names": None},
+        "next.success": {"dtype": "bool", "shape": (1,), "names": None},
+        "next.done": {"dtype": "bool", "shape": (1,), "names": None},
+    })
+    return features
+
+
+class DatasetError(ValueError):
+    """A dataset that is missing, not a LeRobot dataset, or lacks what its consumer needs."""
+
+
+def read_info(root: str | Path) -> dict:
+    """meta/info.json of a LeRobot dataset, or a DatasetError that says why `root` is not one."""
+    root = Path(root)
+    if not root.exists():
+        raise DatasetError(f"no dataset at {root}: the path does not exist (record one with `policy-composer record RECIPE`)")
+    info_path = root / "meta" / "info.json"
+    if not info_path.is_file():
+        raise DatasetError(f"{root} is not a LeRobot dataset: it has no meta/info.json "
+                           f"(expected a LeRobotDataset {FORMAT_VERSION} folder, as `policy-composer record` writes)")
+    info = json.loads(info_path.read_text())
+    if info.get("codebase_version") != FORMAT_VERSION:
+        raise DatasetError(f"{root} is a LeRobot dataset of format {info.get('codebase_version')}; this project reads "
+                           f"{FORMAT_VERSION} (lerobot 0.4.4); convert it with lerobot's v30 conversion script")
+    return info
+
+
+def read_sidecar(root: str | Path) -> dict:
+    path = Path(root) / SIDECAR
+    return json.loads(path.read_text()) if path.is_file() else {}
+
+
+def check_features(root: str | Path, info: dict, required: dict[str, tuple[int, ...] | None],
+                   fps: int | None = None) -> None:
+    """Raise DatasetError unless every `required` feature exists (with that shape, unless None) and fps matches."""
+    features = info.get("features", {})
+    missing = [k for k in required if k not in features]
+    if missing:
+        cameras = [k for k in missing if k.startswith("observation.images.")]
+        what = "camera(s)" if len(cameras) == len(missing) else "feature(s)"
+        raise DatasetError(f"dataset {root} lacks the {what} {missing}; it has {sorted(features)}. "
+                           f"Record it with those cameras, or configure the consumer for the ones it has.")
+    for key, shape in required.items():
+        if shape is not None and tuple(features[key]["shape"]) != tuple(shape):
+            raise DatasetError(f"dataset {root}: feature {key!r} has shape {tuple(features[key]['shape'])}, "
+                               f"expected {tuple(shape)}")
+    if fps is not None and info.get("fps") != fps:
+        raise DatasetError(f"dataset {root} was recorded at {info.get('fps')} fps, expected {fps} "
+                           f"(the env's control frequency)")
+
+
+def open_dataset(root: str | Path, required: dict[str, tuple[int, ...] | None] | None = None,
+                 fps: int | None = None, episodes: list[int] | None = None, **kwargs):
+    """Check a local dataset, then load it with plain `LeRobotDataset(repo_id, root=...)` (offline)."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from policy_composer.recording.journal import recover
+
+    root = Path(root)
+    recover(root)  # roll back an episode whose save was interrupted
+    info = read_info(root)
+    check_features(root, info, required or {}, fps)
+    repo_id = read_sidecar(root).get("repo_id", f"local/{root.name}")
+    return LeRobotDataset(repo_id, root=root, episodes=episodes, **kwargs)

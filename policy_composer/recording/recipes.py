@@ -1,0 +1,69 @@
+"""Dataset recipes: what each of the project's datasets holds and how it is made (`datasets/recipes/*.toml`)."""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+RECIPE_DIR = Path(__file__).resolve().parents[2] / "datasets" / "recipes"
+DRIVERS = ("expert", "controllers")
+
+
+class RecipeError(ValueError):
+    pass
+
+
+@dataclass(frozen=True)
+class ExpertSettings:
+    grasp_offset_mm: float = 12.0
+    teleop: bool = False
+
+
+@dataclass(frozen=True)
+class Recipe:
+    name: str
+    description: str
+    task: str  # LeRobot's per-frame task string
+    episodes: int  # default number of episodes (per controller for the "controllers" driver)
+    driver: str  # "expert": the scripted expert; "controllers": each controller of the library
+    record_phases: tuple[str, ...] = ()  # expert phases to record; empty: the whole episode
+    keep: str = "success"  # "success": failed episodes are dropped and another seed is tried; "all"
+    train_episodes: int | None = None  # episodes [0, train_episodes) train, the rest are held out
+    controllers: tuple[str, ...] = ()
+    expert: ExpertSettings = field(default_factory=ExpertSettings)
+
+    def __post_init__(self):
+        if self.driver not in DRIVERS:
+            raise RecipeError(f"recipe {self.name}: driver {self.driver!r} is not one of {DRIVERS}")
+        if self.keep not in ("success", "all"):
+            raise RecipeError(f"recipe {self.name}: keep must be 'success' or 'all', not {self.keep!r}")
+
+    def splits(self, num_episodes: int) -> dict[str, list[int]]:
+        if self.train_episodes is None:
+            return {"train": list(range(num_episodes))}
+        n = min(self.train_episodes, num_episodes)
+        return {"train": list(range(n)), "heldout": list(range(n, num_episodes))}
+
+
+def available_recipes() -> list[str]:
+    return sorted(p.stem for p in RECIPE_DIR.glob("*.toml"))
+
+
+def load_recipe(name_or_path: str | Path) -> Recipe:
+    """A recipe by name (one of `available_recipes()`) or from a TOML file."""
+    path = Path(name_or_path)
+    if path.suffix != ".toml":
+        path = RECIPE_DIR / f"{name_or_path}.toml"
+    if not path.is_file():
+        raise RecipeError(f"no recipe {str(name_or_path)!r}; known recipes: {', '.join(available_recipes())} "
+                          f"(or give the path of a .toml recipe)")
+    raw = tomllib.loads(path.read_text())
+    known = {f.name for f in fields(Recipe)}
+    unknown = set(raw) - known
+    if unknown:
+        raise RecipeError(f"recipe {path}: unknown keys {sorted(unknown)}; a recipe has {sorted(known)}")
+    raw["expert"] = ExpertSettings(**raw.get("expert", {}))
+    for key in ("record_phases", "controllers"):
+        raw[key] = tuple(raw.get(key, ()))
+    return Recipe(**raw)

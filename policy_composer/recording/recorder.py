@@ -1,0 +1,192 @@
+"""Record GearAssembly-v1 rollouts into a LeRobotDataset, the way ManiSkill's `RecordEpisode` records trajectories.
+
+`LeRobotRecorder` wraps the env: every `step` while `recording` is on buffers the observation the action
+was chosen from, the action, the stage and the controller that produced it. `save_episode` labels the
+buffered frames (progress, done) and writes them as one LeRobot episode: videos per camera (h264 with
+streaming encoding, about 3x faster than lerobot's default AV1 here), the rest in parquet.
+
+Each save is journalled (see `journal`), so a Ctrl-C or `kill -9` at any moment leaves every episode saved
+before it loadable, and `LeRobotRecorder(..., resume=True)` appends to the same dataset.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import threading
+import warnings
+from contextlib import contextmanager
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from policy_composer.recording import journal
+from policy_composer.recording.features import (SIDECAR, DatasetError, dataset_features, image_key, read_info,
+                                                read_sidecar)
+
+VCODEC = "h264"  # not "auto": it picks NVENC and fails without a GPU
+
+
+@contextmanager
+def _deferred_sigint():
+    """Hold back Ctrl-C while an episode is being written, then raise it."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught = []
+    previous = signal.signal(signal.SIGINT, lambda *_: caught.append(True))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if caught:
+        raise KeyboardInterrupt
+
+
+@contextmanager
+def _quiet_lerobot():
+    """Keep a recording's terminal to its progress bar: no per-episode encoder stats, map bars or bool warnings."""
+    import av
+
+    av.logging.set_libav_level(av.logging.ERROR)  # lerobot restores the default callback, which obeys this
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "Converting input from bool", RuntimeWarning)
+        yield
+
+
+def _flat(action, env) -> np.ndarray:
+    if isinstance(action, dict):  # ManiSkill's per-arm dict, in agent order
+        action = torch.cat([torch.as_tensor(action[k]).reshape(-1) for k in env.agent.agents_dict])
+    return torch.as_tensor(action, dtype=torch.float32).reshape(-1).cpu().numpy()
+
+
+class LeRobotRecorder(gym.Wrapper):
+    """Wraps a single GearAssembly-v1 env (obs_mode "rgb") and saves chosen episodes to a LeRobotDataset."""
+
+    def __init__(self, env: gym.Env, root: str | Path, task: str, repo_id: str | None = None, resume: bool = False,
+                 metadata: dict | None = None):
+        super().__init__(env)
+        u = env.unwrapped
+        if u.num_envs != 1:
+            raise ValueError(f"the recorder writes one episode at a time; got num_envs={u.num_envs}")
+        if "rgb" not in u.obs_mode:
+            raise ValueError(f"recording needs camera images: make the env with obs_mode='rgb' (got {u.obs_mode!r})")
+        self.root = Path(root)
+        self.task = task
+        self.fps = int(u.control_freq)
+        width, height = u.camera_size
+        if width != height:
+            raise ValueError(f"recordings use square camera images; got {width}x{height}")
+        self.cameras = tuple(u.camera_names)
+        self.features = dataset_features(self.cameras, width)
+        self.recording = True
+        self.controller = "unknown"  # set by the driver: the controller whose action the next step applies
+        self._frames: list[dict] = []
+        self._obs = None
+        if resume:
+            journal.recover(self.root)
+        if self.root.exists():
+            if not resume:
+                raise FileExistsError(f"{self.root} already exists ({self._describe()}); pass --resume to append "
+                                      f"to it, or choose another --root")
+            self._check_compatible(read_info(self.root))
+            self.sidecar = read_sidecar(self.root)
+        else:
+            self.sidecar = {"repo_id": repo_id or f"local/{self.root.name}", "controllers": [], "episodes": []}
+        self.sidecar.update(metadata or {})
+        self.repo_id = self.sidecar["repo_id"]
+
+    # ----------------------------------------------------------------- queries
+    @property
+    def num_episodes(self) -> int:
+        return len(self.sidecar["episodes"])
+
+    @property
+    def episodes(self) -> list[dict]:
+        """Per saved episode: seed, success, length, and anything the driver added."""
+        return self.sidecar["episodes"]
+
+    def _describe(self) -> str:
+        try:
+            return f"{read_info(self.root)['total_episodes']} episodes"
+        except DatasetError as e:
+            return str(e)
+
+    def _check_compatible(self, info: dict) -> None:
+        theirs = {k: (v["dtype"], tuple(v["shape"])) for k, v in info["features"].items() if k in self.features}
+        ours = {k: (v["dtype"], tuple(v["shape"])) for k, v in self.features.items()}
+        if theirs != ours or info["fps"] != self.fps:
+            raise DatasetError(f"cannot resume {self.root}: it holds {theirs} at {info['fps']} fps, this env records "
+                               f"{ours} at {self.fps} fps (same cameras and resolution needed)")
+
+    # ----------------------------------------------------------------- gym
+    def reset(self, **kwargs):
+        obs, info = self.env.reset(**kwargs)
+        self._frames = []
+        self._obs = obs
+        self._stage = int(self.env.unwrapped.evaluate()["stage"][0])
+        return obs, info
+
+    def step(self, action):
+        u = self.env.unwrapped
+        flat = _flat(action, u)
+        obs, reward, terminated, truncated, info = self.env.step(u.flat_to_dict_action(flat))
+        if self.recording:
+            prev = self._obs
+            self._frames.append({
+                **{image_key(c): prev["sensor_data"][c]["rgb"][0].cpu().numpy() for c in self.cameras},
+                "observation.state": prev["extra"]["state"][0].cpu().numpy().astype(np.float32),
+                "action": flat.astype(np.float32),
+                "stage": np.array([self._stage], dtype=np.int64),
+                "controller": np.array([self._controller_index(self.controller)], dtype=np.int64),
+                "next.success": np.array([bool(info["success"][0])]),
+            })
+        self._obs = obs
+        self._stage = int(info["stage"][0])
+        return obs, reward, terminated, truncated, info
+
+    def _controller_index(self, name: str) -> int:
+        names = self.sidecar["controllers"]
+        if name not in names:
+            names.append(name)
+        return names.index(name)
+
+    @property
+    def buffered_frames(self) -> int:
+        return len(self._frames)
+
+    # ----------------------------------------------------------------- saving
+    def discard_episode(self) -> None:
+        self._frames = []
+
+    def save_episode(self, success: bool, **episode_info) -> None:
+        """Label the buffered frames and write them as one episode; all or nothing, even on kill -9."""
+        import datasets
+        from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+        frames, self._frames = self._frames, []
+        if not frames:
+            raise ValueError("no frames to save: step the env with recording on first")
+        T = len(frames)
+        for t, frame in enumerate(frames):
+            frame["progress"] = np.array([t / max(T - 1, 1) if success else -1.0], dtype=np.float32)
+            frame["next.done"] = np.array([t == T - 1])
+            frame["task"] = self.task
+        with _deferred_sigint(), _quiet_lerobot():
+            journal.begin(self.root)
+            if self.root.exists():  # lerobot's resume path: this episode goes into new files
+                dataset = LeRobotDataset(self.repo_id, root=self.root, vcodec=VCODEC, streaming_encoding=True)
+            else:
+                dataset = LeRobotDataset.create(self.repo_id, fps=self.fps, features=self.features, root=self.root,
+                                                robot_type="panda_pair", use_videos=True, vcodec=VCODEC,
+                                                streaming_encoding=True)
+            datasets.disable_progress_bars()  # after opening: lerobot's loader turns them back on
+            for frame in frames:
+                dataset.add_frame(frame)
+            dataset.save_episode()
+            dataset.finalize()
+            self.sidecar["episodes"].append({"success": bool(success), "length": T, **episode_info})
+            (self.root / SIDECAR).write_text(json.dumps(self.sidecar, indent=1))
+            journal.commit(self.root)

@@ -1,0 +1,230 @@
+"""LeRobot datasets of GearAssembly-v1 rollouts: what is written is what loads, labels, recipes, bad input, LeRobot's trainer."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+
+import tasks  # noqa: F401
+from policy_composer.recording import journal
+from policy_composer.recording.catalog import HubUnreachable, push_dataset, summarize
+from policy_composer.recording.features import DatasetError, open_dataset
+from policy_composer.recording.recipes import RecipeError, available_recipes, load_recipe
+from policy_composer.recording.record import EnvSettings, record_recipe
+from policy_composer.recording.recorder import LeRobotRecorder
+from tasks.gear_assembly import ACTION_NAMES, CAMERA_NAMES, STATE_NAMES
+from tasks.gear_expert import ExpertConfig, GearAssemblyExpert
+
+RES = 64
+BIN = Path(sys.executable).parent
+
+
+def _tree_digest(root: Path) -> dict[str, str]:
+    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def insertion_demos(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("ds") / "gear-insertion-demos"
+    record_recipe(load_recipe("gear-insertion-demos"), root, episodes=2, settings=EnvSettings(resolution=RES), progress=False)
+    return root
+
+
+def test_reloaded_dataset_equals_what_was_written(tmp_path):
+    env = gym.make("GearAssembly-v1", obs_mode="rgb", camera_width=RES, camera_height=RES)
+    root = tmp_path / "full"
+    recorder = LeRobotRecorder(env, root, task="pick the gear")
+    expert = GearAssemblyExpert(recorder, ExpertConfig())
+    obs, _ = recorder.reset(seed=4)
+    expert.reset(4)
+    recorder.controller = "expert"
+    written = {"state": [], "action": [], "head": [], "stage": []}
+    for _ in range(25):
+        action = expert.act(obs)
+        written["state"].append(obs["extra"]["state"][0].numpy().copy())
+        written["head"].append(obs["sensor_data"]["head"]["rgb"][0].numpy().copy())
+        written["stage"].append(int(env.unwrapped.evaluate()["stage"][0]))
+        written["action"].append(action.numpy().copy())
+        obs, *_ = recorder.step(action)
+    recorder.save_episode(success=False, seed=4)
+    env.close()
+
+    ds = open_dataset(root, required={"observation.images.head": (RES, RES, 3)}, fps=20)
+    assert ds.num_episodes == 1 and ds.num_frames == 25
+    assert ds.meta.features["observation.state"]["names"] == list(STATE_NAMES)
+    assert ds.meta.features["action"]["names"] == list(ACTION_NAMES)
+    frames = [ds[i] for i in range(25)]
+    np.testing.assert_array_equal(np.stack([f["observation.state"].numpy() for f in frames]), np.stack(written["state"]))
+    np.testing.assert_array_equal(np.stack([f["action"].numpy() for f in frames]), np.stack(written["action"]))
+    assert [int(f["stage"]) for f in frames] == written["stage"]
+    assert all(float(f["progress"]) == -1.0 for f in frames)  # failed (unfinished) episode: no progress target
+    assert [bool(f["next.done"]) for f in frames] == [False] * 24 + [True]
+    assert frames[0]["task"] == "pick the gear"
+    # Video is lossy (h264): decoded frames match the rendered ones closely, and in order.
+    decoded = np.stack([(f["observation.images.head"].permute(1, 2, 0).numpy() * 255) for f in frames])
+    err = np.abs(decoded - np.stack(written["head"]).astype(np.float32)).mean(axis=(1, 2, 3))
+    assert err.max() < 12.0, err  # crf 30, yuv420p at 64x64
+    shifted = np.abs(decoded[:-5] - np.stack(written["head"][5:]).astype(np.float32)).mean()
+    assert err.mean() < shifted or shifted < 1.0  # not merely some frame of the same scene
+
+
+def test_insertion_demos_labels_and_variety(insertion_demos):
+    ds = open_dataset(insertion_demos, required={f"observation.images.{c}": (RES, RES, 3) for c in CAMERA_NAMES})
+    sidecar = json.loads((insertion_demos / "meta" / "policy_composer.json").read_text())
+    assert ds.num_episodes == 2 and sidecar["recipe"] == "gear-insertion-demos"
+    assert [e["seed"] for e in sidecar["episodes"]] == [0, 1] and all(e["success"] for e in sidecar["episodes"])
+    progress = ds.hf_dataset["progress"]
+    episode = ds.hf_dataset["episode_index"]
+    frame = ds.hf_dataset["frame_index"]
+    stages = set(int(s) for s in ds.hf_dataset["stage"])
+    for ep in (0, 1):
+        idx = [i for i, e in enumerate(episode) if int(e) == ep]
+        T = len(idx)
+        np.testing.assert_allclose([float(progress[i]) for i in idx], [int(frame[i]) / (T - 1) for i in idx], atol=1e-6)
+    assert stages <= {2, 3} and 2 in stages  # recording starts at the pre-insertion pose
+    assert {sidecar["controllers"][int(c)] for c in ds.hf_dataset["controller"]} == {"expert"}
+    # Two demonstrations are not one path replayed: different starts and different lengths or actions.
+    a0 = torch.stack([ds[i]["action"] for i in range(len(ds)) if int(episode[i]) == 0])
+    a1 = torch.stack([ds[i]["action"] for i in range(len(ds)) if int(episode[i]) == 1])
+    assert a0.shape != a1.shape or not torch.allclose(a0, a1, atol=1e-3)
+
+
+def test_dataset_info_and_push_without_network(insertion_demos, monkeypatch):
+    out = subprocess.run([str(BIN / "policy-composer"), "dataset", "info", str(insertion_demos)],
+                         capture_output=True, text=True, check=True).stdout
+    assert "episodes:    2" in out and "success:     100%" in out and "head 64x64x3" in out and "fps: 20" in out
+    before = _tree_digest(insertion_demos)
+    env = {**os.environ, "HF_HUB_OFFLINE": "1"}
+    res = subprocess.run([str(BIN / "policy-composer"), "dataset", "push", str(insertion_demos), "--repo-id", "me/gears"],
+                         capture_output=True, text=True, env=env, timeout=120)
+    assert res.returncode == 2 and "unreachable" in res.stderr and "intact" in res.stderr
+    assert _tree_digest(insertion_demos) == before
+    with pytest.raises(ValueError, match="USER/NAME"):
+        push_dataset(insertion_demos, "no-slash")
+    # Reachable hub: the command hands the local dataset to LeRobotDataset.push_to_hub under the new repo id.
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    calls = []
+    monkeypatch.setattr("policy_composer.recording.catalog._check_hub_reachable", lambda root: None)
+    monkeypatch.setattr(LeRobotDataset, "push_to_hub", lambda self, **kw: calls.append((self.repo_id, self.root, kw)))
+    assert push_dataset(insertion_demos, "me/gears", private=True) == "https://huggingface.co/datasets/me/gears"
+    assert calls[0][0] == "me/gears" and Path(calls[0][1]) == insertion_demos and calls[0][2]["private"] is True
+    monkeypatch.undo()  # the real reachability check, offline
+    monkeypatch.setattr("huggingface_hub.constants.HF_HUB_OFFLINE", True)
+    with pytest.raises(HubUnreachable, match="HF_HUB_OFFLINE"):
+        push_dataset(insertion_demos, "me/gears")
+
+
+def test_bad_input_is_named(insertion_demos, tmp_path):
+    with pytest.raises(DatasetError, match="does not exist"):
+        open_dataset(tmp_path / "nothing")
+    (tmp_path / "plain").mkdir()
+    with pytest.raises(DatasetError, match="not a LeRobot dataset"):
+        open_dataset(tmp_path / "plain")
+    with pytest.raises(DatasetError, match=r"lacks the camera\(s\) \['observation.images.wrist'\]"):
+        open_dataset(insertion_demos, required={"observation.images.wrist": None})
+    with pytest.raises(DatasetError, match=r"'observation.state' has shape \(16,\), expected \(14,\)"):
+        open_dataset(insertion_demos, required={"observation.state": (14,)})
+    with pytest.raises(DatasetError, match="recorded at 20 fps, expected 30"):
+        open_dataset(insertion_demos, fps=30)
+    env = gym.make("GearAssembly-v1", obs_mode="rgb", camera_width=32, camera_height=32)
+    with pytest.raises(FileExistsError, match="--resume"):
+        LeRobotRecorder(env, insertion_demos, task="x")
+    with pytest.raises(DatasetError, match="cannot resume"):
+        LeRobotRecorder(env, insertion_demos, task="x", resume=True)
+    env.close()
+    with pytest.raises(RecipeError, match="known recipes"):
+        load_recipe("gear-nothing")
+    assert available_recipes() == ["gear-controller-rollouts", "gear-full-task-demos", "gear-insertion-demos"]
+    assert load_recipe("gear-full-task-demos").splits(8) == {"train": [0, 1, 2, 3, 4], "heldout": [5, 6, 7]}
+    with pytest.raises(RecipeError, match="library has none"):
+        record_recipe(load_recipe("gear-controller-rollouts"), tmp_path / "ro", settings=EnvSettings(resolution=32))
+
+
+def test_journal_rolls_back_an_unfinished_save(insertion_demos, tmp_path):
+    import shutil
+
+    root = tmp_path / "copy"
+    shutil.copytree(insertion_demos, root)
+    before = _tree_digest(root)
+    journal.begin(root)
+    # What a save killed half-way leaves: new files, rewritten metadata.
+    (root / "data" / "chunk-000" / "file-009.parquet").write_bytes(b"PAR1 truncated")
+    (root / "videos" / "observation.images.head" / "chunk-000" / "file-009.mp4").write_bytes(b"\x00")
+    (root / "tmpabc").mkdir()
+    (root / "tmpabc" / "x_streaming.mp4").write_bytes(b"\x00")
+    info = json.loads((root / "meta" / "info.json").read_text())
+    info["total_episodes"] += 1
+    (root / "meta" / "info.json").write_text(json.dumps(info))
+    assert journal.recover(root)
+    assert _tree_digest(root) == before and not journal.journal_dir(root).exists()
+    assert open_dataset(root).num_episodes == 2
+
+
+def _record_cmd(root: Path, episodes: int, *extra: str) -> list[str]:
+    return [str(BIN / "policy-composer"), "record", "gear-insertion-demos", "--episodes", str(episodes),
+            "--root", str(root), "--resolution", "48", *extra]
+
+
+def _wait_for_episodes(proc: subprocess.Popen, root: Path, n: int, timeout: float = 300) -> None:
+    import time
+
+    sidecar = root / "meta" / "policy_composer.json"
+    t0 = time.time()
+    while time.time() - t0 < timeout:
+        if sidecar.is_file():
+            try:
+                if len(json.loads(sidecar.read_text())["episodes"]) >= n:
+                    return
+            except json.JSONDecodeError:
+                pass
+        assert proc.poll() is None, proc.stderr.read() if proc.stderr else "recorder exited early"
+        time.sleep(0.2)
+    raise TimeoutError(f"no {n} episodes recorded in {timeout} s")
+
+
+@pytest.mark.parametrize("sig", ["SIGKILL", "SIGINT"])
+def test_interrupted_recording_keeps_finished_episodes_and_resumes(tmp_path, sig):
+    import signal
+
+    root = tmp_path / "demos"
+    env = {**os.environ, "HF_HUB_OFFLINE": "1"}
+    proc = subprocess.Popen(_record_cmd(root, 2), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    _wait_for_episodes(proc, root, 1)
+    proc.send_signal(getattr(signal, sig))
+    rc = proc.wait(timeout=120)
+    assert rc == (-9 if sig == "SIGKILL" else 130), proc.stderr.read()
+    # Every finished episode loads with plain LeRobotDataset (after rolling back a save cut short, if any).
+    ds = open_dataset(root)
+    kept = ds.num_episodes
+    assert kept == 1 and ds.num_frames == sum(json.loads((root / "meta/policy_composer.json").read_text())[
+        "episodes"][i]["length"] for i in range(kept))
+    subprocess.run(_record_cmd(root, 2, "--resume"), env=env, check=True, capture_output=True)
+    ds = open_dataset(root)
+    sidecar = json.loads((root / "meta" / "policy_composer.json").read_text())
+    seeds = [e["seed"] for e in sidecar["episodes"]]
+    assert ds.num_episodes == 2 and len(set(seeds)) == 2 and seeds == sorted(seeds)
+    assert sorted(set(int(e) for e in ds.hf_dataset["episode_index"])) == [0, 1]
+    assert ds[len(ds) - 1]["observation.images.head"].shape == (3, 48, 48)
+
+
+def test_lerobot_trainer_runs_on_our_dataset(insertion_demos, tmp_path):
+    """lerobot's own trainer (ACT, 2 steps) reads the format: a check of the files, not of our reader."""
+    cmd = [str(BIN / "lerobot-train"), f"--dataset.repo_id=local/{insertion_demos.name}", f"--dataset.root={insertion_demos}",
+           "--policy.type=act", "--policy.pretrained_backbone_weights=null", "--policy.push_to_hub=false",
+           "--policy.device=cpu", "--steps=2", "--batch_size=2", "--num_workers=0", f"--output_dir={tmp_path / 'out'}",
+           "--wandb.enable=false", "--log_freq=1", "--save_checkpoint=false"]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=600,
+                         env={**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"})
+    log = res.stdout + res.stderr
+    assert res.returncode == 0, log[-3000:]
+    assert "step:2" in log and "End of training" in log
