@@ -66,8 +66,9 @@ class LeRobotRecorder(gym.Wrapper):
     """Wraps a single GearAssembly-v1 env (obs_mode "rgb") and saves chosen episodes to a LeRobotDataset."""
 
     def __init__(self, env: gym.Env, root: str | Path, task: str, repo_id: str | None = None, resume: bool = False,
-                 metadata: dict | None = None):
+                 metadata: dict | None = None, vcodec: str = VCODEC, streaming_encoding: bool = True):
         super().__init__(env)
+        self.video = {"vcodec": vcodec, "streaming_encoding": streaming_encoding}
         u = env.unwrapped
         if u.num_envs != 1:
             raise ValueError(f"the recorder writes one episode at a time; got num_envs={u.num_envs}")
@@ -177,11 +178,10 @@ class LeRobotRecorder(gym.Wrapper):
         with _deferred_sigint(), _quiet_lerobot():
             journal.begin(self.root)
             if self.root.exists():  # lerobot's resume path: this episode goes into new files
-                dataset = LeRobotDataset(self.repo_id, root=self.root, vcodec=VCODEC, streaming_encoding=True)
+                dataset = LeRobotDataset(self.repo_id, root=self.root, **self.video)
             else:
                 dataset = LeRobotDataset.create(self.repo_id, fps=self.fps, features=self.features, root=self.root,
-                                                robot_type="panda_pair", use_videos=True, vcodec=VCODEC,
-                                                streaming_encoding=True)
+                                                robot_type="panda_pair", use_videos=True, **self.video)
             datasets.disable_progress_bars()  # after opening: lerobot's loader turns them back on
             for frame in frames:
                 dataset.add_frame(frame)
