@@ -111,6 +111,28 @@ def cmd_dataset_push(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_mdp(args: argparse.Namespace) -> int:
+    """The paper's random-walk experiments: 19 states (planning steps, solution figure), 100 states (noise heatmap)."""
+    from policy_composer import mdp
+
+    out = Path(args.out)
+    t0 = time.time()
+    s19 = mdp.experiment_19(out, episodes=args.episodes_19, seed=args.seed)
+    print(f"19 states, p = 0.2: {s19['mean_planning_steps']:.2f} planning steps on average "
+          f"(paper: {mdp.PAPER['planning_steps_19']}), {100 * s19['success_rate']:.1f}% reach the goal")
+    units = ("lookahead", "step") if args.noise_unit == "both" else (args.noise_unit,)
+    heatmaps = {}
+    for unit in units:
+        t = time.time()
+        heatmaps[unit] = mdp.heatmap_100(out, episodes=args.episodes_100, seed=args.seed, dyn_noise_unit=unit)
+        c = heatmaps[unit]["claims"]
+        print(f"100-state heatmap ({unit}, {time.time() - t:.0f} s): {c['range'][0]:.1f} to {c['range'][1]:.1f} "
+              f"activations (paper: {mdp.PAPER['heatmap_min']} to {mdp.PAPER['heatmap_max']})")
+    report = mdp.write_report(out, s19, heatmaps)
+    print(f"report: {report} ({time.time() - t0:.0f} s)")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="policy-composer", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -146,6 +168,15 @@ def build_parser() -> argparse.ArgumentParser:
     record.add_argument("--clearance", type=float, default=2.0, help="radial clearance between peg and hole, mm")
     record.add_argument("--seed", type=int, default=0, help="first seed (with --resume: the dataset's next one)")
     record.set_defaults(func=cmd_record)
+
+    mdp = sub.add_parser("mdp", help="the paper's random-walk MDP experiments (19 and 100 states)")
+    mdp.add_argument("--out", default="results/mdp")
+    mdp.add_argument("--episodes-19", type=int, default=1000, help="episodes of the 19-state experiment")
+    mdp.add_argument("--episodes-100", type=int, default=100, help="episodes per heatmap cell")
+    mdp.add_argument("--noise-unit", choices=("lookahead", "step", "both"), default="both",
+                     help="dynamics noise per n-step look-ahead, per model step, or both heatmaps")
+    mdp.add_argument("--seed", type=int, default=0)
+    mdp.set_defaults(func=cmd_mdp)
 
     dataset = sub.add_parser("dataset", help="inspect and share recorded LeRobot datasets")
     ds_sub = dataset.add_subparsers(dest="what", required=True)
