@@ -17,9 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 import sapien
 import torch
-from transforms3d.quaternions import mat2quat
 
 from tasks.gear_assembly import GearAssemblyEnv
+from tasks.gear_kinematics import LeftArmIK, hand_down_quat, plate_direction
 
 GRIPPER_OPEN = 1.0  # normalised gripper commands (see ACTION_NAMES)
 GRIPPER_CLOSED = -1.0
@@ -53,21 +53,16 @@ class GearAssemblyExpert:
         if self.env.num_envs != 1:
             raise ValueError(f"the scripted expert drives one environment; got num_envs={self.env.num_envs}")
         self.config = config or ExpertConfig()
-        robot = self.env.left_arm.robot._objs[0]
-        self._ik = robot.create_pinocchio_model()
-        self._tcp_index = [l.name.endswith("panda_hand_tcp") for l in robot.get_links()].index(True)
-        self._mask = np.array([1] * 7 + [0, 0], dtype=np.int32)
+        self._ik = LeftArmIK(self.env)
 
     # ------------------------------------------------------------------ helpers
     def _np(self, x: torch.Tensor) -> np.ndarray:
         return x[0].detach().cpu().numpy().astype(np.float64)
 
     def _ik_joint_targets(self, target: sapien.Pose) -> np.ndarray:
-        base = sapien.Pose(self._np(self.env.left_arm.robot.pose.p), self._np(self.env.left_arm.robot.pose.q))
-        qpos, ok, _ = self._ik.compute_inverse_kinematics(
-            self._tcp_index, base.inv() * target, initial_qpos=self._q_seed, active_qmask=self._mask, max_iterations=200)
+        qpos, ok = self._ik.solve(target, self._q_seed)
         if ok:  # otherwise keep the last reachable configuration
-            self._q_seed = np.asarray(qpos)
+            self._q_seed = qpos
         return self._q_seed[:7]
 
     def _toward(self, goal_p: np.ndarray, step: float) -> tuple[sapien.Pose, float]:
@@ -93,13 +88,10 @@ class GearAssemblyExpert:
         self._gripper = GRIPPER_OPEN
         # Hand down; the fingers close across the plate's direction, so the hand's thin side faces the
         # right hand while inserting.
-        plate_dir = self._np(env.peg_module.pose.to_transformation_matrix()[..., :3, 0])
-        plate_dir[2] = 0.0
-        plate_dir /= np.linalg.norm(plate_dir)
-        z = np.array([0.0, 0.0, -1.0])
-        x = plate_dir
-        y = np.cross(z, x)
-        self._cmd_q = mat2quat(np.stack([x, y, z], axis=1))
+        x = plate_direction(env)
+        x[2] = 0.0
+        x /= np.linalg.norm(x)
+        self._cmd_q = hand_down_quat(x)
         self._cmd_p = self._np(env.left_arm.tcp.pose.p)
         spec = env.gear_spec
         gear = self._gear_world_p()

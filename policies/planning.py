@@ -1,0 +1,192 @@
+"""Joint-space motion planning for the left Panda: OMPL RRT-Connect with collision checks by pinocchio + coal.
+
+The collision model is the Panda's own (ManiSkill's URDF collision meshes, self-collision pairs filtered by
+its SRDF) plus the scene as the planner sees it at planning time: the table, the right arm at its current
+configuration (its link meshes placed by forward kinematics), the peg module it holds, and, while carrying,
+the gear attached to the hand. A check takes tens of microseconds, so RRT-Connect with path simplification
+plans in well under a second. Paths are then time-parameterised to the Panda's joint velocity limits.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import coal
+import numpy as np
+import pinocchio as pin
+from mani_skill import PACKAGE_ASSET_DIR
+
+from tasks.gear_assembly import LEFT_BASE, RIGHT_BASE
+
+PANDA_DIR = Path(PACKAGE_ASSET_DIR) / "robots" / "panda"
+URDF, SRDF = PANDA_DIR / "panda_v2.urdf", PANDA_DIR / "panda_v2.srdf"
+# Franka Panda joint limits (rad, rad/s), as in the URDF.
+JOINT_LOW = np.array([-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973])
+JOINT_HIGH = np.array([2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973])
+VELOCITY_LIMIT = np.array([2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61])
+TABLE_HALF = (1.2, 1.2, 0.05)  # a slab whose top is the table surface (z = 0)
+
+
+class PlanningError(RuntimeError):
+    """No collision-free path was found (or the start or goal is in collision)."""
+
+
+def _se3(pose) -> pin.SE3:
+    """sapien.Pose -> pin.SE3."""
+    return pin.SE3(pin.Quaternion(float(pose.q[0]), *map(float, pose.q[1:])).matrix(), np.asarray(pose.p, dtype=float))
+
+
+@dataclass
+class HeldObject:
+    """A cylinder attached to the hand (the held gear), pose in the hand link frame."""
+
+    radius: float
+    height: float
+    hand_to_object: pin.SE3
+
+
+class SceneCollisionModel:
+    """The left Panda and its scene, in the left arm's base frame."""
+
+    def __init__(self):
+        self.model = pin.buildModelFromUrdf(str(URDF))
+        self._robot_geom = pin.buildGeomFromUrdf(self.model, str(URDF), pin.GeometryType.COLLISION,
+                                                 package_dirs=[str(PANDA_DIR)])
+        self._robot_geom.addAllCollisionPairs()
+        pin.removeCollisionPairsFromXML(self.model, self._robot_geom, SRDF.read_text())
+        self._fk_data = self.model.createData()
+        self._fk_gdata = pin.GeometryData(self._robot_geom)
+        self.hand_joint = self.model.getJointId("panda_joint7")
+        self.geom = self._robot_geom
+        self.data = self.model.createData()
+        self.gdata = pin.GeometryData(self.geom)
+        self.fingers = np.array([0.04, 0.04])
+        self.checks = 0
+
+    def _robot_link_geoms(self) -> list[int]:
+        return [i for i, g in enumerate(self._robot_geom.geometryObjects) if "link0" not in g.name]
+
+    def set_scene(self, right_qpos: np.ndarray, peg_module_pose, table: bool = True,
+                  held: HeldObject | None = None, fingers: float = 0.04) -> None:
+        """Place the obstacles for the next plans (world poses as sapien.Pose; right_qpos: 9 values)."""
+        geom = self._robot_geom.copy()
+        to_left = _se3(LEFT_BASE).inverse()
+        obstacles = []
+
+        def add(name, shape, world: pin.SE3):
+            obstacles.append(geom.addGeometryObject(pin.GeometryObject(name, 0, to_left * world, shape)))
+
+        if table:
+            add("table", coal.Box(*(2 * np.array(TABLE_HALF))), pin.SE3(np.eye(3), np.array([0, 0, -TABLE_HALF[2]])))
+        # The right arm where it stands: its collision meshes placed by forward kinematics.
+        q = pin.neutral(self.model)
+        q[:9] = right_qpos
+        pin.framesForwardKinematics(self.model, self._fk_data, q)
+        pin.updateGeometryPlacements(self.model, self._fk_data, self._robot_geom, self._fk_gdata)
+        right_base = _se3(RIGHT_BASE)
+        for i, g in enumerate(self._robot_geom.geometryObjects):
+            add(f"right_{g.name}", g.geometry, right_base * self._fk_gdata.oMg[i])
+        # The peg module the right hand holds (see tasks.gear_geometry.build_peg_module).
+        from tasks.gear_geometry import GearSpec
+
+        spec = GearSpec()
+        module = _se3(peg_module_pose)
+        hx, hy, hz = spec.plate_half_size
+        add("plate", coal.Box(2 * hx, 2 * hy, 2 * hz),
+            module * pin.SE3(np.eye(3), np.array([-spec.peg_offset - 0.03 + hx, 0.0, -hz])))
+        add("peg", coal.Cylinder(spec.peg_radius, spec.peg_height),
+            module * pin.SE3(np.eye(3), np.array([0.0, 0.0, spec.peg_height / 2])))
+
+        robot = self._robot_link_geoms()
+        for o in obstacles:
+            for r in robot:
+                geom.addCollisionPair(pin.CollisionPair(r, o))
+        if held is not None:
+            gid = geom.addGeometryObject(pin.GeometryObject("held", self.hand_joint, held.hand_to_object,
+                                                            coal.Cylinder(held.radius, held.height)))
+            for o in obstacles:
+                geom.addCollisionPair(pin.CollisionPair(gid, o))
+            for r in robot:  # the held object may touch the hand and fingers, not the rest of the arm
+                name = self._robot_geom.geometryObjects[r].name
+                if not any(k in name for k in ("hand", "finger", "link7", "link6")):
+                    geom.addCollisionPair(pin.CollisionPair(r, gid))
+        self.geom, self.gdata = geom, pin.GeometryData(geom)
+        self.fingers = np.array([fingers, fingers])
+
+    def in_collision(self, q7: np.ndarray) -> bool:
+        self.checks += 1
+        q = np.concatenate([q7, self.fingers])
+        return bool(pin.computeCollisions(self.model, self.data, self.geom, self.gdata, q, True))
+
+    def colliding_pairs(self, q7: np.ndarray) -> list[tuple[str, str]]:
+        """Which geometry pairs collide at q7 (for error messages)."""
+        q = np.concatenate([q7, self.fingers])
+        pin.computeCollisions(self.model, self.data, self.geom, self.gdata, q, False)
+        names = [g.name for g in self.geom.geometryObjects]
+        return [(names[p.first], names[p.second]) for k, p in enumerate(self.geom.collisionPairs)
+                if self.gdata.collisionResults[k].isCollision()]
+
+
+def plan_rrt_connect(collision: SceneCollisionModel, q_start: np.ndarray, q_goal: np.ndarray,
+                     timeout: float = 2.0, seed: int | None = None) -> np.ndarray:
+    """A simplified collision-free joint path (K, 7) from q_start to q_goal, by OMPL's RRT-Connect."""
+    from ompl import base as ob
+    from ompl import geometric as og
+    from ompl import util as ou
+
+    for label, q in (("start", q_start), ("goal", q_goal)):
+        if np.any(q < JOINT_LOW - 1e-6) or np.any(q > JOINT_HIGH + 1e-6):
+            raise PlanningError(f"the {label} configuration {np.round(q, 3)} is outside the Panda's joint limits")
+        if collision.in_collision(q):
+            raise PlanningError(f"the {label} configuration is in collision: {collision.colliding_pairs(q)[:4]}")
+    if seed is not None:
+        ou.RNG.setSeed(int(seed) + 1)  # OMPL rejects seed 0
+    ou.setLogLevel(ou.LogLevel.LOG_WARN)
+    space = ob.RealVectorStateSpace(7)
+    bounds = ob.RealVectorBounds(7)
+    for i in range(7):
+        bounds.setLow(i, float(JOINT_LOW[i]))
+        bounds.setHigh(i, float(JOINT_HIGH[i]))
+    space.setBounds(bounds)
+    ss = og.SimpleSetup(space)
+    ss.setStateValidityChecker(lambda s: not collision.in_collision(np.array([s[i] for i in range(7)])))
+    ss.getSpaceInformation().setStateValidityCheckingResolution(0.005)
+    start, goal = space.allocState(), space.allocState()
+    for i in range(7):
+        start[i], goal[i] = float(q_start[i]), float(q_goal[i])
+    ss.setStartAndGoalStates(start, goal)
+    ss.setPlanner(og.RRTConnect(ss.getSpaceInformation()))
+    if not ss.solve(timeout) or not ss.haveExactSolutionPath():
+        raise PlanningError(f"RRT-Connect found no path in {timeout} s")
+    ss.simplifySolution(min(1.0, timeout))
+    path = ss.getSolutionPath()
+    return np.array([[path.getState(k)[i] for i in range(7)] for k in range(path.getStateCount())])
+
+
+def time_parameterize(path: np.ndarray, dt: float, speed: float = 0.4, accel_steps: int = 8) -> np.ndarray:
+    """Joint targets every `dt` along a piecewise-linear path: at most `speed` x the velocity limits, with
+    linear ramps up and down over `accel_steps` control steps. Returns (T, 7), ending exactly at path[-1]."""
+    seg = np.diff(path, axis=0)
+    # Time to traverse each segment at full speed: the slowest joint decides.
+    seg_t = np.max(np.abs(seg) / (speed * VELOCITY_LIMIT), axis=1) if len(seg) else np.zeros(0)
+    total = float(seg_t.sum())
+    if total <= 0:
+        return path[-1:].copy()
+    ramp = accel_steps * dt
+    cruise = max(total - ramp / 2, 0.0)  # a linear velocity ramp of ramp/2 at each end costs ramp/2 of path time
+    duration = cruise + ramp
+    ts = np.arange(dt, duration + dt, dt)
+
+    def progress(t):  # path time travelled by wall time t (trapezoid, normalised to reach `total`)
+        up = np.clip(t, 0, ramp / 2)
+        flat = np.clip(t - ramp / 2, 0, cruise)
+        down = np.clip(t - ramp / 2 - cruise, 0, ramp / 2)
+        v_scale = total / (cruise + ramp / 2)
+        return v_scale * (up ** 2 / ramp + flat + (down - down ** 2 / ramp))
+
+    knots = np.concatenate([[0.0], np.cumsum(seg_t)])
+    s = np.clip(progress(ts), 0, total)
+    out = np.stack([np.interp(s, knots, path[:, j]) for j in range(7)], axis=1)
+    out[-1] = path[-1]
+    return out
