@@ -28,6 +28,9 @@ VELOCITY_LIMIT = np.array([2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61])
 TABLE_HALF = (1.2, 1.2, 0.05)  # a slab whose top is the table surface (z = 0)
 
 
+_OMPL_SEEDED = False
+
+
 class PlanningError(RuntimeError):
     """No collision-free path was found (or the start or goal is in collision)."""
 
@@ -140,9 +143,11 @@ def plan_rrt_connect(collision: SceneCollisionModel, q_start: np.ndarray, q_goal
             raise PlanningError(f"the {label} configuration {np.round(q, 3)} is outside the Panda's joint limits")
         if collision.in_collision(q):
             raise PlanningError(f"the {label} configuration is in collision: {collision.colliding_pairs(q)[:4]}")
-    if seed is not None:
-        ou.RNG.setSeed(int(seed) + 1)  # OMPL rejects seed 0
-    ou.setLogLevel(ou.LogLevel.LOG_WARN)
+    global _OMPL_SEEDED
+    ou.setLogLevel(ou.LogLevel.LOG_ERROR)
+    if not _OMPL_SEEDED:  # OMPL takes a seed once per process, before its first sample
+        ou.RNG.setSeed(int(seed or 0) + 1)  # and rejects 0
+        _OMPL_SEEDED = True
     space = ob.RealVectorStateSpace(7)
     bounds = ob.RealVectorBounds(7)
     for i in range(7):

@@ -1,0 +1,188 @@
+"""Controllers of GearAssembly-v1's left arm: the shared outcome, safety and scene-geometry logic.
+
+A controller here commands the left arm's 7 joint targets and its gripper and leaves the right arm at its
+targets. Every command passes a safety check against the Panda's joint position and velocity limits; a
+command that would break them stops the controller "for safety" (the paper's `*`) and holds the arm.
+
+Initiation sets and outcomes are judged on the simulator's state (`env.evaluate()`, the gear pose): they
+stand for the perception that decides where each controller may run, and the controllers' own inputs stay
+their own (joint angles for planning and DMPs, camera pixels for the CNN).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import Enum
+
+import numpy as np
+import sapien
+import torch
+
+from policies.base import Controller
+from policies.planning import JOINT_HIGH, JOINT_LOW, VELOCITY_LIMIT
+from tasks.gear_kinematics import hand_down_quat, plate_direction
+
+GRIPPER_OPEN, GRIPPER_CLOSED = 1.0, -1.0
+CARRY_CLEARANCE = 0.03  # gear bottom above the peg top at the pre-insertion pose (m)
+RELEASE_HEIGHT = 0.012  # gear bottom above the plate when the gripper opens (m)
+
+
+class Outcome(str, Enum):
+    RUNNING = "running"
+    DONE = "done"
+    FAILED = "failed"
+    SAFETY_STOP = "stopped for safety"
+
+
+@dataclass
+class Segment:
+    """Joint targets to follow one per control step, then `settle` steps holding the last, gripper fixed."""
+
+    q: np.ndarray  # (T, 7)
+    gripper: float
+    settle: int = 4
+
+
+def np0(x: torch.Tensor) -> np.ndarray:
+    """Env 0 of a batched tensor, as float64 numpy."""
+    return x[0].detach().cpu().numpy().astype(np.float64)
+
+
+class SceneGeometry:
+    """Where things are and where the nominal grasp puts them (all world frame)."""
+
+    def __init__(self, env):
+        self.env = env.unwrapped if hasattr(env, "unwrapped") else env
+        spec = self.env.gear_spec
+        self.grasp_height = spec.ring_thickness + 0.7 * spec.top_thickness  # TCP above the gear's bottom
+        self.spec = spec
+
+    def finger_dir(self) -> np.ndarray:
+        d = plate_direction(self.env)
+        d[2] = 0.0
+        return d / np.linalg.norm(d)
+
+    def hand_down(self) -> np.ndarray:
+        return hand_down_quat(self.finger_dir())
+
+    def gear(self) -> np.ndarray:
+        return np0(self.env.gear.pose.p)
+
+    def tcp(self) -> np.ndarray:
+        return np0(self.env.left_arm.tcp.pose.p)
+
+    def peg_top(self) -> np.ndarray:
+        return np0(self.env.peg_top.p)
+
+    def pre_insertion_tcp(self) -> sapien.Pose:
+        """TCP pose that puts a centred gear's bottom CARRY_CLEARANCE above the peg top."""
+        return sapien.Pose(self.peg_top() + [0, 0, CARRY_CLEARANCE + self.grasp_height], self.hand_down())
+
+    def info(self) -> dict:
+        return {k: bool(v[0]) if v.dtype == torch.bool else float(v[0]) for k, v in self.env.evaluate().items()}
+
+
+class LeftArmController(Controller):
+    """Base of the gear controllers: outcome bookkeeping, the safety check, the flat 16-D action."""
+
+    obs_keys = ("extra.state",)
+    action_kind = "joint_targets"
+
+    def __init__(self, env):
+        self.env = env.unwrapped if hasattr(env, "unwrapped") else env
+        self.rate_hz = float(self.env.control_freq)
+        self.scene = SceneGeometry(self.env)
+        self.outcome = Outcome.DONE
+        self.reason = ""
+        self._gripper = GRIPPER_OPEN
+
+    # ------------------------------------------------------------ subclass hooks
+    def next_command(self, obs) -> tuple[np.ndarray, float] | None:
+        """The next (7 joint targets, gripper command), or None when the controller has finished."""
+        raise NotImplementedError
+
+    def succeeded(self, info: dict) -> tuple[bool, str]:
+        """Judge the finished activation: (success, reason if not)."""
+        return True, ""
+
+    # ------------------------------------------------------------ the interface
+    def reset(self, obs, seed: int | None = None) -> None:
+        self.outcome, self.reason = Outcome.RUNNING, ""
+        self._hold = np0(self.env.hold_action())
+        self._last = self.left_qpos(obs)
+        self._gripper = float(self._hold[7])
+
+    def act(self, obs) -> torch.Tensor:
+        action = self._hold.copy()
+        if self.outcome is Outcome.RUNNING:
+            cmd = self.next_command(obs)
+            if cmd is None:
+                ok, why = self.succeeded(self.scene.info())
+                self.outcome, self.reason = (Outcome.DONE, "") if ok else (Outcome.FAILED, why)
+            else:
+                q, gripper = cmd
+                violation = self.safety_violation(q)
+                if violation:
+                    self.outcome, self.reason = Outcome.SAFETY_STOP, violation
+                else:
+                    self._last, self._gripper = q, gripper
+        action[:7], action[7] = self._last, self._gripper
+        return torch.as_tensor(action, dtype=torch.float32)
+
+    def done(self, obs=None) -> bool:
+        return self.outcome is not Outcome.RUNNING
+
+    def safety_violation(self, q: np.ndarray) -> str:
+        """Why joint targets `q` would break the Panda's limits ("" if they would not)."""
+        q = np.asarray(q, dtype=np.float64)
+        if not np.all(np.isfinite(q)):
+            return f"{self.name}: non-finite joint target {q}"
+        outside = np.flatnonzero((q < JOINT_LOW) | (q > JOINT_HIGH))
+        if len(outside):
+            j = outside[0]
+            return (f"{self.name}: joint {j + 1} target {q[j]:.3f} rad is outside the Panda's limits "
+                    f"[{JOINT_LOW[j]:.3f}, {JOINT_HIGH[j]:.3f}]")
+        speed = np.abs(q - self._last) * self.rate_hz
+        fast = np.flatnonzero(speed > VELOCITY_LIMIT)
+        if len(fast):
+            j = fast[0]
+            return (f"{self.name}: joint {j + 1} would move at {speed[j]:.2f} rad/s, over the Panda's limit "
+                    f"{VELOCITY_LIMIT[j]:.2f} rad/s")
+        return ""
+
+    # ------------------------------------------------------------ helpers
+    @staticmethod
+    def left_qpos(obs) -> np.ndarray:
+        return np0(obs["extra"]["state"])[:7]
+
+    def describe(self, obs) -> str:
+        info = self.scene.info()
+        return ", ".join(f"{k}={info[k]}" for k in ("gear_grasped", "gear_lifted", "gear_at_peg", "success"))
+
+
+class ScriptedController(LeftArmController):
+    """A controller that plans its whole activation at the start as segments of joint targets (MP, DMP)."""
+
+    def plan(self, obs, seed: int | None) -> list[Segment]:
+        raise NotImplementedError
+
+    def reset(self, obs, seed: int | None = None) -> None:
+        super().reset(obs, seed)
+        self.segments = self.plan(obs, seed)
+        self._k, self._t = 0, 0
+
+    def next_command(self, obs):
+        while self._k < len(self.segments):
+            seg = self.segments[self._k]
+            T = len(seg.q)
+            if self._t < T + seg.settle:
+                q = seg.q[min(self._t, T - 1)]
+                self._t += 1
+                return q, seg.gripper
+            self._k, self._t = self._k + 1, 0
+        return None
+
+    @property
+    def trajectory(self) -> np.ndarray:
+        """The planned joint targets of the activation, (T, 7)."""
+        return np.concatenate([s.q for s in self.segments]) if self.segments else np.zeros((0, 7))

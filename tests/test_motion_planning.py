@@ -1,0 +1,100 @@
+"""Motion-planning controllers: OMPL plans that are collision-free and within limits, the subtasks done, open-loop
+insertion that needs a centred grasp, initiation sets and the safety stop."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import sapien
+
+from policies.arm import Outcome, ScriptedController, Segment
+from policies.base import InitiationError
+from policies.motion_planning import MPInsert, MPMove, MPPick
+from policies.planning import (VELOCITY_LIMIT, PlanningError, SceneCollisionModel, plan_rrt_connect,
+                               time_parameterize)
+from tasks.gear_assembly import LEFT_START_QPOS
+
+
+def _run(env, controller, obs, seed, limit=400):
+    controller.start(obs, seed=seed)
+    u = env.unwrapped
+    steps = 0
+    while not controller.done(obs) and steps < limit:
+        obs, *_ = env.step(u.flat_to_dict_action(controller.act(obs)))
+        steps += 1
+    return obs
+
+
+def _scene(env) -> SceneCollisionModel:
+    u = env.unwrapped
+    model = SceneCollisionModel()
+    pose = u.peg_module.pose
+    model.set_scene(u.right_arm.robot.get_qpos()[0].numpy(), sapien.Pose(pose.p[0].numpy(), pose.q[0].numpy()))
+    return model
+
+
+def test_planner_avoids_the_scene_and_respects_velocity_limits(state_env):
+    state_env.reset(seed=2)
+    model = _scene(state_env)
+    start = LEFT_START_QPOS[:7].copy()
+    assert not model.in_collision(start)
+    into_table, into_right_arm = start.copy(), start.copy()
+    into_table[[1, 3, 5]] = 1.3, -1.5, 2.5  # reaching down through the table
+    into_right_arm[[1, 3, 5]] = 0.9, -0.8, 1.5  # reaching across into the other arm
+    assert {b for _, b in model.colliding_pairs(into_table)} == {"table"}
+    assert all(b.startswith("right_") for _, b in model.colliding_pairs(into_right_arm))
+    assert model.colliding_pairs(into_right_arm)
+    with pytest.raises(PlanningError, match="goal configuration is in collision"):
+        plan_rrt_connect(model, start, into_table)
+    goal = np.array([0.9, 0.3, 0.2, -2.0, 0.1, 2.4, 0.5])
+    path = plan_rrt_connect(model, start, goal, seed=0)
+    np.testing.assert_allclose(path[0], start)
+    np.testing.assert_allclose(path[-1], goal)
+    dense = np.concatenate([np.linspace(a, b, 50) for a, b in zip(path[:-1], path[1:])])
+    assert not any(model.in_collision(q) for q in dense)
+    traj = time_parameterize(path, dt=0.05, speed=0.4)
+    np.testing.assert_allclose(traj[-1], goal)
+    assert (np.abs(np.diff(np.vstack([start, traj]), axis=0)) / 0.05 <= 0.4 * VELOCITY_LIMIT + 1e-6).all()
+
+
+def test_centred_grasp_inserts_and_offset_grasp_fails(state_env):
+    outcomes = {}
+    for offset in (0.0, 0.009):
+        obs, _ = state_env.reset(seed=1)
+        pick, move, insert = MPPick(state_env, grasp_offset=offset), MPMove(state_env), MPInsert(state_env)
+        assert pick.can_start(obs) and not move.can_start(obs) and not insert.can_start(obs)
+        obs = _run(state_env, pick, obs, seed=1)
+        assert pick.outcome is Outcome.DONE, pick.reason
+        obs = _run(state_env, move, obs, seed=1)
+        assert move.outcome is Outcome.DONE, move.reason
+        obs = _run(state_env, insert, obs, seed=1)
+        outcomes[offset] = (insert.outcome, bool(state_env.unwrapped.evaluate()["success"][0]))
+    assert outcomes[0.0] == (Outcome.DONE, True)
+    assert outcomes[0.009] == (Outcome.FAILED, False)  # 9 mm off with 2 mm clearance: open loop cannot seat it
+
+
+def test_initiation_sets_refuse_wrong_states(state_env):
+    obs, _ = state_env.reset(seed=0)
+    for controller in (MPMove(state_env), MPInsert(state_env)):
+        with pytest.raises(InitiationError, match=f"{controller.name} cannot start here.*gear_grasped=False"):
+            controller.start(obs)
+
+
+def test_a_command_past_the_velocity_limit_stops_for_safety(state_env):
+    class Jump(ScriptedController):
+        name = "jump"
+
+        def can_start(self, obs):
+            return True
+
+        def plan(self, obs, seed):
+            q = self.left_qpos(obs)
+            return [Segment(np.stack([q, q + [0.5, 0, 0, 0, 0, 0, 0]]), 1.0)]  # 0.5 rad in 50 ms = 10 rad/s
+
+    obs, _ = state_env.reset(seed=0)
+    jump = Jump(state_env)
+    jump.start(obs)
+    held = jump.act(obs)
+    second = jump.act(obs)
+    assert jump.outcome is Outcome.SAFETY_STOP and "10.00 rad/s" in jump.reason and jump.done(obs)
+    np.testing.assert_allclose(second[:7].numpy(), held[:7].numpy())  # the arm holds its last safe target
