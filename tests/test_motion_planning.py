@@ -9,7 +9,8 @@ import sapien
 
 from policies.arm import Outcome, ScriptedController, Segment
 from policies.base import InitiationError
-from policies.motion_planning import MPInsert, MPMove, MPPick
+from policies.motion_planning import MotionPlanningController
+from policies.subtasks import SUBTASKS
 from policies.planning import (VELOCITY_LIMIT, PlanningError, SceneCollisionModel, plan_rrt_connect,
                                time_parameterize)
 from tasks.gear_assembly import LEFT_START_QPOS
@@ -61,7 +62,8 @@ def test_centred_grasp_inserts_and_offset_grasp_fails(state_env):
     outcomes = {}
     for offset in (0.0, 0.009):
         obs, _ = state_env.reset(seed=1)
-        pick, move, insert = MPPick(state_env, grasp_offset=offset), MPMove(state_env), MPInsert(state_env)
+        pick, move, insert = (MotionPlanningController(state_env, SUBTASKS[n], grasp_offset=offset)
+                              for n in ("pick", "move", "insert"))
         assert pick.can_start(obs) and not move.can_start(obs) and not insert.can_start(obs)
         obs = _run(state_env, pick, obs, seed=1)
         assert pick.outcome is Outcome.DONE, pick.reason
@@ -75,7 +77,7 @@ def test_centred_grasp_inserts_and_offset_grasp_fails(state_env):
 
 def test_initiation_sets_refuse_wrong_states(state_env):
     obs, _ = state_env.reset(seed=0)
-    for controller in (MPMove(state_env), MPInsert(state_env)):
+    for controller in (MotionPlanningController(state_env, SUBTASKS[n]) for n in ("move", "insert")):
         with pytest.raises(InitiationError, match=f"{controller.name} cannot start here.*gear_grasped=False"):
             controller.start(obs)
 

@@ -1,0 +1,174 @@
+"""The gear task's three subtasks as waypoints: what a controller must reach, independent of how it moves.
+
+A subtask turns the scene into a list of waypoints (goal configurations by IK, with the gripper command and
+whether the way there is free space or a straight TCP line), an initiation set and a success test. The
+motion-planning controllers connect the waypoints with RRT-Connect and IK lines; the DMP controllers connect
+the same waypoints with movement primitives learned from the planner's trajectories.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import sapien
+
+from policies.arm import (CARRY_CLEARANCE, GRIPPER_CLOSED, GRIPPER_OPEN, RELEASE_HEIGHT, SceneGeometry, ScriptedController,
+                          Segment, np0)
+from policies.planning import JOINT_HIGH, JOINT_LOW, PlanningError
+from tasks.gear_kinematics import LeftArmIK, hand_down_quat
+
+PRE_GRASP_HEIGHT = 0.08  # TCP above the grasp point before descending (m)
+LIFT_HEIGHT = 0.12  # how far the pick-up lifts the gear (m)
+RETREAT_HEIGHT = 0.10
+
+
+@dataclass
+class Waypoint:
+    kind: str  # "free": around obstacles; "line": straight TCP line; "hold": stay (the gripper changes)
+    q: np.ndarray  # (9,) goal configuration
+    gripper: float
+    tcp: np.ndarray | None = None  # goal TCP position (lines)
+    quat: np.ndarray | None = None
+    step: float = 0.004  # TCP travel per control step on a line (m)
+    settle: int = 4  # control steps holding the goal afterwards
+
+
+def ik_hand_down(ik: LeftArmIK, scene: SceneGeometry, p: np.ndarray, seed_q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(quat, q) putting the TCP at p with the hand down: of the two finger directions (the gripper is
+    symmetric), the one whose solution is within the joint limits and nearest `seed_q`."""
+    best = None
+    x = scene.finger_dir()
+    for quat in (hand_down_quat(x), hand_down_quat(-x)):
+        q, ok = ik.solve(sapien.Pose(p, quat), seed_q)
+        if ok and np.all(q[:7] >= JOINT_LOW) and np.all(q[:7] <= JOINT_HIGH):
+            cost = float(np.abs(q[:7] - seed_q[:7]).sum())
+            if best is None or cost < best[0]:
+                best = (cost, quat, q)
+    if best is None:
+        raise PlanningError(f"no IK solution within the joint limits for the TCP at {np.round(p, 3)}")
+    return best[1], best[2]
+
+
+def line_to(ik: LeftArmIK, q_from: np.ndarray, p: np.ndarray, quat: np.ndarray, gripper: float, step: float,
+            settle: int = 4) -> Waypoint:
+    q, ok = ik.solve(sapien.Pose(p, quat), q_from)
+    if not ok:
+        raise PlanningError(f"no IK solution for the TCP at {np.round(p, 3)}")
+    return Waypoint("line", q, gripper, tcp=np.asarray(p, dtype=float), quat=quat, step=step, settle=settle)
+
+
+class Subtask:
+    name = ""
+    initiation = ""
+
+    def can_start(self, scene: SceneGeometry) -> bool:
+        raise NotImplementedError
+
+    def waypoints(self, ik: LeftArmIK, scene: SceneGeometry, q_now: np.ndarray, grasp_offset: float) -> list[Waypoint]:
+        raise NotImplementedError
+
+    def succeeded(self, info: dict) -> tuple[bool, str]:
+        raise NotImplementedError
+
+    holds_gear = False  # whether the gear is in the hand on the way (the planner attaches it)
+
+
+class Pick(Subtask):
+    name = "pick"
+    initiation = "gear lying on the table, not in the gripper"
+
+    def can_start(self, scene):
+        info = scene.info()
+        return not info["gear_grasped"] and scene.gear()[2] < 0.02 and not info["gear_inserted"]
+
+    def waypoints(self, ik, scene, q_now, grasp_offset):
+        grasp = scene.gear() + scene.finger_dir() * grasp_offset + [0, 0, scene.grasp_height]
+        quat, q_pre = ik_hand_down(ik, scene, grasp + [0, 0, PRE_GRASP_HEIGHT], q_now)
+        down = line_to(ik, q_pre, grasp, quat, GRIPPER_OPEN, step=0.004)
+        up = line_to(ik, down.q, grasp + [0, 0, LIFT_HEIGHT], quat, GRIPPER_CLOSED, step=0.006)
+        return [Waypoint("free", q_pre, GRIPPER_OPEN, settle=6), down,
+                Waypoint("hold", down.q, GRIPPER_CLOSED, settle=8), up]
+
+    def succeeded(self, info):
+        return info["gear_lifted"], "the gear is not in the gripper after the lift"
+
+
+class Move(Subtask):
+    name = "move"
+    initiation = "gear grasped and lifted off the table"
+    holds_gear = True
+
+    def can_start(self, scene):
+        info = scene.info()
+        return info["gear_lifted"] and not info["gear_inserted"]
+
+    def waypoints(self, ik, scene, q_now, grasp_offset):
+        _, q = ik_hand_down(ik, scene, scene.pre_insertion_tcp().p, q_now)
+        return [Waypoint("free", q, GRIPPER_CLOSED, settle=6)]
+
+    def succeeded(self, info):
+        return info["gear_at_peg"], "the gear is not at the pre-insertion pose above the peg"
+
+
+class Insert(Subtask):
+    """Open loop: the nominal grasp puts the gear's axis on the TCP, so slide the TCP down the peg's axis."""
+
+    name = "insert"
+    initiation = "gear grasped, held above the peg at the pre-insertion pose"
+
+    def can_start(self, scene):
+        return scene.info()["gear_at_peg"]
+
+    def waypoints(self, ik, scene, q_now, grasp_offset):
+        tcp, top, h = scene.tcp(), scene.peg_top(), scene.grasp_height
+        quat, _ = ik_hand_down(ik, scene, tcp, q_now)
+        above = np.array([top[0], top[1], max(tcp[2], top[2] + CARRY_CLEARANCE + h)])
+        release = np.array([top[0], top[1], top[2] - scene.spec.peg_height + RELEASE_HEIGHT + h])
+        align = line_to(ik, q_now, above, quat, GRIPPER_CLOSED, step=0.003, settle=2)
+        down = line_to(ik, align.q, release, quat, GRIPPER_CLOSED, step=0.003)
+        back = line_to(ik, down.q, release + [0, 0, RETREAT_HEIGHT], quat, GRIPPER_OPEN, step=0.006)
+        return [align, down, Waypoint("hold", down.q, GRIPPER_OPEN, settle=8), back]
+
+    def succeeded(self, info):
+        return info["success"], "the gear is not seated on the peg"
+
+
+SUBTASKS = {s.name: s for s in (Pick(), Move(), Insert())}
+
+
+class SubtaskController(ScriptedController):
+    """A controller for one subtask: the subtask gives waypoints, the subclass says how to connect them."""
+
+    kind = ""  # "mp", "dmp"
+
+    def __init__(self, env, subtask: Subtask, max_grasp_offset: float = 0.012, grasp_offset: float | None = None):
+        super().__init__(env)
+        self.subtask = subtask
+        self.name = f"{self.kind}_{subtask.name}"
+        self.initiation = subtask.initiation
+        self.ik = LeftArmIK(self.env)
+        self.max_grasp_offset = max_grasp_offset
+        self.fixed_grasp_offset = grasp_offset  # set: every pick is off by exactly this much (tests, tables)
+        self.grasp_offset = 0.0
+
+    def can_start(self, obs) -> bool:
+        return self.subtask.can_start(self.scene)
+
+    def succeeded(self, info: dict) -> tuple[bool, str]:
+        return self.subtask.succeeded(info)
+
+    def q9(self, obs) -> np.ndarray:
+        state = np0(obs["extra"]["state"])
+        return np.concatenate([state[:7], [state[7] / 2] * 2])
+
+    def plan(self, obs, seed):
+        # The pick-up perceives the gear's position with an error along the fingers: the gear will sit off-centre.
+        rng = np.random.default_rng(seed)
+        offset = rng.uniform(-self.max_grasp_offset, self.max_grasp_offset)
+        self.grasp_offset = float(offset if self.fixed_grasp_offset is None else self.fixed_grasp_offset)
+        waypoints = self.subtask.waypoints(self.ik, self.scene, self.q9(obs), self.grasp_offset)
+        return self.connect(obs, waypoints, seed)
+
+    def connect(self, obs, waypoints: list[Waypoint], seed: int | None) -> list[Segment]:
+        raise NotImplementedError
