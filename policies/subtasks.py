@@ -167,8 +167,8 @@ class SubtaskController(ScriptedController):
         rng = np.random.default_rng(seed)
         offset = rng.uniform(-self.max_grasp_offset, self.max_grasp_offset)
         self.grasp_offset = float(offset if self.fixed_grasp_offset is None else self.fixed_grasp_offset)
-        waypoints = self.subtask.waypoints(self.ik, self.scene, self.q9(obs), self.grasp_offset)
-        return self.connect(obs, waypoints, seed)
+        self.waypoints = self.subtask.waypoints(self.ik, self.scene, self.q9(obs), self.grasp_offset)
+        return self.connect(obs, self.waypoints, seed)
 
     def connect(self, obs, waypoints: list[Waypoint], seed: int | None) -> list[Segment]:
         raise NotImplementedError

@@ -65,6 +65,7 @@ PLATE_GRIP = 0.024  # right finger position holding the plate
 ALIGN_TOL_DEG = 8.0
 SEATED_TOL = 0.004  # gear bottom at most this far above the plate
 LIFT_HEIGHT = 0.03
+GRASP_DISTANCE = 0.05  # gear origin to the left TCP while grasped (m)
 PRE_INSERT_RADIUS = 0.015
 PRE_INSERT_HEIGHT = 0.06
 
@@ -235,7 +236,10 @@ class GearAssemblyEnv(BaseEnv):
         radial = torch.linalg.norm(rel_p[:, :2], dim=-1)
         height = rel_p[:, 2]
         peg_h = self.gear_spec.peg_height
-        grasped = self.left_arm.is_grasping(self.gear)
+        # Contact forces are those of the last physics step (stale right after a reset): also ask for the
+        # gear to be at the fingers.
+        near = torch.linalg.norm(self.gear.pose.p - self.left_arm.tcp.pose.p, dim=-1) < GRASP_DISTANCE
+        grasped = self.left_arm.is_grasping(self.gear) & near
         lifted = grasped & (self.gear.pose.p[:, 2] > LIFT_HEIGHT)
         aligned = axis_cos > np.cos(np.deg2rad(ALIGN_TOL_DEG))
         at_peg = grasped & (radial < PRE_INSERT_RADIUS) & (height >= peg_h - 0.003) & (height <= peg_h + PRE_INSERT_HEIGHT) \
