@@ -19,7 +19,8 @@ import sapien
 import torch
 
 from policies.base import Controller
-from policies.planning import JOINT_HIGH, JOINT_LOW, VELOCITY_LIMIT
+from policies.planning import VELOCITY_LIMIT
+from tasks.gear_kinematics import JOINT_HIGH, JOINT_LOW
 from tasks.gear_kinematics import hand_down_quat, plate_direction
 
 GRIPPER_OPEN, GRIPPER_CLOSED = 1.0, -1.0

@@ -18,12 +18,11 @@ import pinocchio as pin
 from mani_skill import PACKAGE_ASSET_DIR
 
 from tasks.gear_assembly import LEFT_BASE, RIGHT_BASE
+from tasks.gear_kinematics import JOINT_HIGH, JOINT_LOW
 
 PANDA_DIR = Path(PACKAGE_ASSET_DIR) / "robots" / "panda"
 URDF, SRDF = PANDA_DIR / "panda_v2.urdf", PANDA_DIR / "panda_v2.srdf"
-# Franka Panda joint limits (rad, rad/s), as in the URDF.
-JOINT_LOW = np.array([-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973])
-JOINT_HIGH = np.array([2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973])
+# Franka Panda joint velocity limits (rad/s), as in the URDF.
 VELOCITY_LIMIT = np.array([2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61])
 TABLE_HALF = (1.2, 1.2, 0.05)  # a slab whose top is the table surface (z = 0)
 

@@ -15,8 +15,8 @@ import sapien
 
 from policies.arm import (CARRY_CLEARANCE, GRIPPER_CLOSED, GRIPPER_OPEN, RELEASE_HEIGHT, SceneGeometry, ScriptedController,
                           Segment, np0)
-from policies.planning import JOINT_HIGH, JOINT_LOW, PlanningError
-from tasks.gear_kinematics import LeftArmIK, hand_down_quat
+from policies.planning import PlanningError
+from tasks.gear_kinematics import LeftArmIK
 
 PRE_GRASP_HEIGHT = 0.08  # TCP above the grasp point before descending (m)
 LIFT_HEIGHT = 0.12  # how far the pick-up lifts the gear (m)
@@ -35,19 +35,11 @@ class Waypoint:
 
 
 def ik_hand_down(ik: LeftArmIK, scene: SceneGeometry, p: np.ndarray, seed_q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(quat, q) putting the TCP at p with the hand down: of the two finger directions (the gripper is
-    symmetric), the one whose solution is within the joint limits and nearest `seed_q`."""
-    best = None
-    x = scene.finger_dir()
-    for quat in (hand_down_quat(x), hand_down_quat(-x)):
-        q, ok = ik.solve(sapien.Pose(p, quat), seed_q)
-        if ok and np.all(q[:7] >= JOINT_LOW) and np.all(q[:7] <= JOINT_HIGH):
-            cost = float(np.abs(q[:7] - seed_q[:7]).sum())
-            if best is None or cost < best[0]:
-                best = (cost, quat, q)
-    if best is None:
+    """(quat, q) putting the TCP at p with the hand down (see LeftArmIK.solve_hand_down)."""
+    solution = ik.solve_hand_down(p, scene.finger_dir(), seed_q)
+    if solution is None:
         raise PlanningError(f"no IK solution within the joint limits for the TCP at {np.round(p, 3)}")
-    return best[1], best[2]
+    return solution
 
 
 def line_to(ik: LeftArmIK, q_from: np.ndarray, p: np.ndarray, quat: np.ndarray, gripper: float, step: float,

@@ -91,12 +91,15 @@ class GearAssemblyExpert:
         x = plate_direction(env)
         x[2] = 0.0
         x /= np.linalg.norm(x)
-        self._cmd_q = hand_down_quat(x)
         self._cmd_p = self._np(env.left_arm.tcp.pose.p)
         spec = env.gear_spec
         gear = self._gear_world_p()
         self._grasp_height = spec.ring_thickness + 0.7 * spec.top_thickness
         self._grasp_p = gear + x * self.grasp_offset + np.array([0, 0, self._grasp_height])
+        # Of the two symmetric grasps, the one reachable within the joint limits nearest the start (as the
+        # controllers choose).
+        solution = self._ik.solve_hand_down(self._grasp_p + [0, 0, 0.08], x, self._q_seed)
+        self._cmd_q = solution[0] if solution is not None else hand_down_quat(x)
         self._hold = self._np(env.hold_action())
         self._rng = rng
         if cfg.teleop:

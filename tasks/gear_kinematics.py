@@ -8,6 +8,9 @@ import sapien
 from transforms3d.quaternions import mat2quat
 
 ARM_MASK = np.array([1] * 7 + [0, 0], dtype=np.int32)  # solve for the 7 arm joints, keep the fingers
+# Franka Panda arm joint limits (rad), as in the URDF.
+JOINT_LOW = np.array([-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973])
+JOINT_HIGH = np.array([2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973])
 
 
 class LeftArmIK:
@@ -28,6 +31,19 @@ class LeftArmIK:
             self._tcp_index, self.base().inv() * tcp_target, initial_qpos=np.asarray(q_seed, dtype=float),
             active_qmask=ARM_MASK, max_iterations=200)
         return np.asarray(qpos), bool(ok)
+
+    def solve_hand_down(self, p: np.ndarray, finger_dir: np.ndarray, q_seed: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """(quat, q) putting the TCP at p with the hand down. The gripper is symmetric, so of the two finger
+        directions (+-finger_dir) take the one whose solution is within the joint limits and nearest q_seed;
+        None if neither is."""
+        best = None
+        for quat in (hand_down_quat(finger_dir), hand_down_quat(-np.asarray(finger_dir))):
+            q, ok = self.solve(sapien.Pose(p, quat), q_seed)
+            if ok and np.all(q[:7] >= JOINT_LOW) and np.all(q[:7] <= JOINT_HIGH):
+                cost = float(np.abs(q[:7] - np.asarray(q_seed)[:7]).sum())
+                if best is None or cost < best[0]:
+                    best = (cost, quat, q)
+        return None if best is None else (best[1], best[2])
 
 
 def hand_down_quat(finger_dir: np.ndarray) -> np.ndarray:
