@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 import sapien
 
-from policies.arm import (CARRY_CLEARANCE, GRIPPER_CLOSED, GRIPPER_OPEN, RELEASE_HEIGHT, SceneGeometry, ScriptedController,
-                          Segment, np0)
+from policies.arm import (CARRY_CLEARANCE, GRIPPER_CLOSED, GRIPPER_OPEN, RELEASE_HEIGHT, LeftArmController, SceneGeometry,
+                          ScriptedController, Segment, np0)
 from policies.planning import PlanningError
 from tasks.gear_kinematics import LeftArmIK
 
@@ -163,4 +163,36 @@ class SubtaskController(ScriptedController):
         return self.connect(obs, self.waypoints, seed)
 
     def connect(self, obs, waypoints: list[Waypoint], seed: int | None) -> list[Segment]:
+        raise NotImplementedError
+
+
+class LearnedController(LeftArmController):
+    """A closed-loop learned policy run for one subtask: it acts every step until the subtask is achieved and the
+    hand has let go, or its step budget is spent. Subclasses give `predict(obs) -> (7 joint targets, gripper)`."""
+
+    action_kind = "joint_targets"
+
+    def __init__(self, env, subtask: Subtask, name: str, max_steps: int = 120):
+        super().__init__(env)
+        self.subtask, self.name, self.initiation, self.max_steps = subtask, name, subtask.initiation, max_steps
+
+    def can_start(self, obs) -> bool:
+        return self.subtask.can_start(self.scene)
+
+    def succeeded(self, info):
+        return self.subtask.succeeded(info)
+
+    def reset(self, obs, seed=None):
+        super().reset(obs, seed)
+        self._steps = 0
+
+    def next_command(self, obs):
+        info = self.scene.info()
+        achieved = self.subtask.succeeded(info)[0]
+        if self._steps >= self.max_steps or (achieved and self._gripper > 0 and not info["gear_grasped"]):
+            return None
+        self._steps += 1
+        return self.predict(obs)
+
+    def predict(self, obs) -> tuple[np.ndarray, float]:
         raise NotImplementedError

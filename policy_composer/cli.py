@@ -133,6 +133,79 @@ def cmd_mdp(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_train_policy(args: argparse.Namespace) -> int:
+    """Behaviour-clone the CNN policy on an insertion dataset."""
+    import torch
+
+    from policies.cnn.configuration_cnn import CNNPolicyConfig
+    from policies.cnn.train import train_cnn_policy
+
+    torch.set_num_threads(args.threads)
+    config = CNNPolicyConfig(camera=args.camera, backbone=args.backbone, epochs=args.epochs, image_size=args.image_size,
+                             num_mixtures=args.mixtures, batch_size=args.batch_size, seed=args.seed)
+    t0 = time.time()
+    _, losses = train_cnn_policy(args.dataset, config, out=args.out)
+    print(f"trained {args.out} in {time.time() - t0:.0f} s: nll {losses[0]:.3f} -> {losses[-1]:.3f} over {len(losses)} epochs")
+    return 0
+
+
+def cmd_train_dmp(args: argparse.Namespace) -> int:
+    """Fit the DMP library to the motion planner's trajectories."""
+    from policies.dmp import fit_dmp_library
+
+    env = _make_env("state_dict", args)
+    t0 = time.time()
+    library = fit_dmp_library(env, seeds=list(range(args.seed, args.seed + args.episodes)))
+    library.save(args.out)
+    env.close()
+    print(f"fitted DMPs to {args.episodes} planner episodes in {time.time() - t0:.0f} s -> {args.out}")
+    return 0
+
+
+def cmd_evaluate_controllers(args: argparse.Namespace) -> int:
+    """Paper Table I, rows MP, DMP, CNN (and a LeRobot policy if given)."""
+    import gymnasium as gym
+    import torch
+    from tqdm import tqdm
+
+    import tasks  # noqa: F401
+    from policies.cnn.controller import CNNController
+    from policies.cnn.train import load_cnn_policy
+    from policies.dmp import DMPController, DMPLibrary
+    from policies.motion_planning import MotionPlanningController
+    from policies.subtasks import SUBTASKS
+    from policy_composer.controller_table import evaluate_kind, write_table
+
+    torch.set_num_threads(1)
+    kinds = args.kinds.split(",")
+    offset = args.grasp_offset / 1000.0
+    make = lambda obs_mode, cameras=("head", "left_forearm", "right_forearm"): gym.make(  # noqa: E731
+        "GearAssembly-v1", obs_mode=obs_mode, cameras=cameras, camera_width=args.resolution,
+        camera_height=args.resolution, clearance=args.clearance / 1000.0)
+    rows = {}
+    for kind in kinds:
+        if kind in ("MP", "DMP"):
+            env = make("state_dict")
+            if kind == "MP":
+                ctrls = {n: MotionPlanningController(env, s, max_grasp_offset=offset) for n, s in SUBTASKS.items()}
+            else:
+                library = DMPLibrary.load(args.dmp)
+                ctrls = {n: DMPController(env, s, library, max_grasp_offset=offset) for n, s in SUBTASKS.items()}
+        elif kind == "CNN":
+            policy = load_cnn_policy(args.cnn)
+            env = make("rgb", cameras=(policy.config.camera,))
+            ctrls = {"insert": CNNController(env, policy)}
+        else:
+            raise SystemExit(f"unknown controller kind {kind!r}; use MP, DMP, CNN")
+        n_cols = sum(1 for c in ("pick", "move", "insert") if c in ctrls) + (len(ctrls) == 3)
+        with tqdm(total=n_cols * args.trials, desc=f"{kind} controllers", unit="trial") as bar:
+            rows[kind] = evaluate_kind(env, ctrls, args.trials, args.seed, on_trial=bar.update)
+        env.close()
+        print(f"{kind}: " + ", ".join(f"{c} {cell}" for c, cell in rows[kind].items()))
+    print(f"table: {write_table(rows, Path(args.out))}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="policy-composer", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -157,6 +230,35 @@ def build_parser() -> argparse.ArgumentParser:
     ev_expert.add_argument("--open-loop", action="store_true",
                            help="carry and insert assuming a centred grasp (shows why insertion needs feedback)")
     ev_expert.set_defaults(func=cmd_evaluate_expert)
+    ev_ctrl = ev_sub.add_parser("controllers", help="each controller kind on each subtask (paper Table I)")
+    env_options(ev_ctrl)
+    ev_ctrl.add_argument("--trials", type=int, default=10)
+    ev_ctrl.add_argument("--kinds", default="MP,DMP,CNN", help="comma-separated: MP, DMP, CNN")
+    ev_ctrl.add_argument("--dmp", default="results/models/dmp", help="DMP library folder (policy-composer train dmp)")
+    ev_ctrl.add_argument("--cnn", default="results/models/cnn_insert", help="CNN checkpoint (policy-composer train policy)")
+    ev_ctrl.add_argument("--out", default="results/controllers")
+    ev_ctrl.set_defaults(func=cmd_evaluate_controllers)
+
+    train = sub.add_parser("train", help="train the library's learned controllers")
+    tr_sub = train.add_subparsers(dest="what", required=True)
+    tr_policy = tr_sub.add_parser("policy", help="behaviour-clone the CNN + MDN policy (cnn_insert)")
+    tr_policy.add_argument("--dataset", default="datasets/gear-insertion-demos")
+    tr_policy.add_argument("--camera", default="left_forearm", choices=("head", "left_forearm", "right_forearm"))
+    tr_policy.add_argument("--backbone", default="small", choices=("small", "resnet18"))
+    tr_policy.add_argument("--epochs", type=int, default=200)
+    tr_policy.add_argument("--image-size", type=int, default=64)
+    tr_policy.add_argument("--mixtures", type=int, default=24)
+    tr_policy.add_argument("--batch-size", type=int, default=120)
+    tr_policy.add_argument("--seed", type=int, default=0)
+    tr_policy.add_argument("--threads", type=int, default=2)
+    tr_policy.add_argument("--out", default="results/models/cnn_insert")
+    tr_policy.set_defaults(func=cmd_train_policy)
+    tr_dmp = tr_sub.add_parser("dmp", help="fit the DMPs to the motion planner's trajectories")
+    env_options(tr_dmp)
+    tr_dmp.add_argument("--episodes", type=int, default=5)
+    tr_dmp.set_defaults(seed=100)
+    tr_dmp.add_argument("--out", default="results/models/dmp")
+    tr_dmp.set_defaults(func=cmd_train_dmp)
 
     record = sub.add_parser("record", help="record a dataset recipe (datasets/recipes/) into a LeRobotDataset")
     record.add_argument("recipe", help="recipe name (gear-insertion-demos, gear-full-task-demos, "

@@ -1,0 +1,66 @@
+"""Any LeRobot policy checkpoint (ACT, diffusion, ... trained with `lerobot-train` on our datasets) as a controller.
+
+The user gives the initiation set and termination by naming the subtask the policy was trained for. The
+checkpoint's own processors normalise inputs and outputs, as in `lerobot-eval`. Its input features must be
+cameras this env renders (`observation.images.<camera>`) and the 16-D `observation.state`; its 16-D action is
+applied to the left arm only (the right arm holds), like every controller of the library.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from policies.cnn.controller import check_camera
+from policies.cnn.train import to_model_image
+from policies.subtasks import SUBTASKS, LearnedController, Subtask
+from tasks.gear_assembly import ACTION_NAMES, STATE_NAMES
+
+
+class LeRobotPolicyController(LearnedController):
+    def __init__(self, env, pretrained_path: str | Path, subtask: Subtask = SUBTASKS["insert"], name: str | None = None,
+                 task: str = "Insert the gear held by the left gripper onto the peg held by the right arm.",
+                 max_steps: int = 120):
+        from lerobot.configs.policies import PreTrainedConfig
+        from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+
+        path = Path(pretrained_path)
+        if not (path / "config.json").is_file():
+            raise FileNotFoundError(f"{path} is not a LeRobot policy checkpoint (no config.json); pass the "
+                                    f"`pretrained_model` folder that lerobot-train saves")
+        cfg = PreTrainedConfig.from_pretrained(path)
+        cfg.device, cfg.pretrained_path = "cpu", str(path)
+        super().__init__(env, subtask, name or f"{cfg.type}_{subtask.name}", max_steps)
+        self.images = {}
+        for key, feature in cfg.input_features.items():
+            if key.startswith("observation.images."):
+                camera = key.removeprefix("observation.images.")
+                check_camera(self.env, camera, f"the {cfg.type} policy at {path}")
+                self.images[key] = (camera, int(feature.shape[-1]))
+            elif key == "observation.state" and tuple(feature.shape) != (len(STATE_NAMES),):
+                raise ValueError(f"the policy at {path} takes a state of shape {tuple(feature.shape)}, "
+                                 f"GearAssembly-v1 gives ({len(STATE_NAMES)},)")
+        if tuple(cfg.output_features["action"].shape) != (len(ACTION_NAMES),):
+            raise ValueError(f"the policy at {path} outputs actions of shape {tuple(cfg.output_features['action'].shape)}, "
+                             f"GearAssembly-v1 takes ({len(ACTION_NAMES)},)")
+        self.policy = get_policy_class(cfg.type).from_pretrained(path, config=cfg).eval()
+        self.preprocess, self.postprocess = make_pre_post_processors(
+            cfg, pretrained_path=str(path), preprocessor_overrides={"device_processor": {"device": "cpu"}})
+        self.task = task
+        self.obs_keys = tuple(f"sensor_data.{c}.rgb" for c, _ in self.images.values()) + ("extra.state",)
+
+    def reset(self, obs, seed=None):
+        super().reset(obs, seed)
+        self.policy.reset()
+
+    @torch.no_grad()
+    def predict(self, obs):
+        batch = {key: to_model_image(obs["sensor_data"][camera]["rgb"][:1].cpu(), size)
+                 for key, (camera, size) in self.images.items()}
+        batch["observation.state"] = obs["extra"]["state"][:1].cpu().float()
+        batch["task"] = [self.task]
+        action = self.postprocess(self.policy.select_action(self.preprocess(batch)))
+        a = action[0].cpu().numpy().astype(np.float64)
+        return a[:7], float(np.clip(a[7], -1.0, 1.0))

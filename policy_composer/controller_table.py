@@ -1,0 +1,127 @@
+"""The per-controller table (paper Table I, rows MP, DMP, CNN): each controller kind on each subtask from that
+subtask's standard start states, and on the full task with its three controllers in the fixed order.
+
+Standard start states come from the scripted expert in its open-loop mode (which carries as if the grasp were
+centred, as a planner would), stopped where the subtask begins: pick from the episode's start; move with the
+gear grasped (off-centre by up to 12 mm) and lifted; insert with the hand at the pre-insertion pose above the
+peg, the gear off-centre by its grasp offset.
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+from policies.arm import Outcome
+
+SUBTASK_COLUMNS = ("pick", "move", "insert", "full")
+START_PHASE = {"move": "carry", "insert": "insert"}  # the expert phase at which a subtask's start state is taken
+PAPER = {  # paper Table I; "*": stopped for safety; "-": not run
+    "MP": {"pick": "10/10", "move": "10/10", "insert": "1/10", "full": "1/10"},
+    "DMP": {"pick": "10/10", "move": "10/10", "insert": "1/10", "full": "1/10"},
+    "CNN": {"pick": "*", "move": "10/10", "insert": "10/10", "full": "-"},
+}
+
+
+@dataclass
+class Cell:
+    successes: int = 0
+    trials: int = 0
+    safety_stops: int = 0
+    failures: list[str] = field(default_factory=list)
+
+    def __str__(self) -> str:
+        if self.trials == 0:
+            return "-"
+        return f"{self.successes}/{self.trials}" + (f" ({self.safety_stops}*)" if self.safety_stops else "")
+
+
+def start_state(env, seed: int, subtask: str, max_steps: int = 300):
+    """Reset to `seed` and run the open-loop expert up to where `subtask` starts; returns the observation."""
+    from tasks.gear_expert import ExpertConfig, GearAssemblyExpert
+
+    obs, _ = env.reset(seed=seed)
+    if subtask in ("pick", "full"):
+        return obs
+    expert = GearAssemblyExpert(env, ExpertConfig(closed_loop=False))
+    expert.reset(seed)
+    u = env.unwrapped
+    for _ in range(max_steps):
+        if expert.phase == START_PHASE[subtask]:
+            return obs
+        obs, *_ = env.step(u.flat_to_dict_action(expert.act(obs)))
+    raise RuntimeError(f"the expert did not reach the {subtask} start state on seed {seed}")
+
+
+def run_controller(env, controller, obs, seed: int, max_steps: int = 400):
+    """One activation from obs; returns the last observation (the controller's outcome is on it)."""
+    u = env.unwrapped
+    controller.start(obs, seed=seed)
+    for _ in range(max_steps):
+        if controller.done(obs):
+            break
+        obs, *_ = env.step(u.flat_to_dict_action(controller.act(obs)))
+    return obs
+
+
+def evaluate_kind(env, controllers: dict[str, object], trials: int, first_seed: int = 0,
+                  on_trial: Callable[[], None] | None = None) -> dict[str, Cell]:
+    """One row: `controllers` maps subtask -> controller (missing subtasks are not run)."""
+    from policies.base import InitiationError
+
+    row = {c: Cell() for c in SUBTASK_COLUMNS}
+    for column in SUBTASK_COLUMNS:
+        sequence = ("pick", "move", "insert") if column == "full" else (column,)
+        if not all(s in controllers for s in sequence):
+            continue
+        cell = row[column]
+        for seed in range(first_seed, first_seed + trials):
+            obs = start_state(env, seed, column)
+            outcome, why = Outcome.DONE, ""
+            for s in sequence:
+                c = controllers[s]
+                try:
+                    obs = run_controller(env, c, obs, seed)
+                except InitiationError as e:
+                    outcome, why = Outcome.FAILED, str(e)
+                    break
+                outcome, why = c.outcome, c.reason
+                if outcome is not Outcome.DONE:
+                    break
+            ok = outcome is Outcome.DONE and (column != "full" or bool(env.unwrapped.evaluate()["success"][0]))
+            cell.trials += 1
+            cell.successes += ok
+            cell.safety_stops += outcome is Outcome.SAFETY_STOP
+            if not ok:
+                cell.failures.append(f"seed {seed}: {why or outcome.value}")
+            if on_trial:
+                on_trial()
+    return row
+
+
+def write_table(rows: dict[str, dict[str, Cell]], out: Path, notes: dict[str, str] | None = None) -> Path:
+    out.mkdir(parents=True, exist_ok=True)
+    with open(out / "controllers.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["kind", "subtask", "successes", "trials", "safety_stops", "paper"])
+        for kind, row in rows.items():
+            for column, cell in row.items():
+                w.writerow([kind, column, cell.successes, cell.trials, cell.safety_stops, PAPER.get(kind, {}).get(column, "")])
+    lines = ["# Controllers on each subtask (paper Table I, first rows)", "",
+             "Each cell: ours (paper). `*`: stopped for safety. `-`: not run.", "",
+             "| controller | pick | move | insert | full task |", "|---|---|---|---|---|"]
+    for kind, row in rows.items():
+        paper = PAPER.get(kind, {})
+        lines.append(f"| {kind} | " + " | ".join(f"{row[c]} ({paper.get(c, '-')})" for c in SUBTASK_COLUMNS) + " |")
+    lines += ["", "## Failures", ""]
+    for kind, row in rows.items():
+        for column, cell in row.items():
+            for failure in cell.failures:
+                lines.append(f"- {kind} {column}, {failure}")
+    for kind, note in (notes or {}).items():
+        lines += ["", f"**{kind}**: {note}"]
+    path = out / "controllers.md"
+    path.write_text("\n".join(lines) + "\n")
+    return path
