@@ -14,3 +14,31 @@ def state_env():
     env = gym.make("GearAssembly-v1", obs_mode="state_dict")
     yield env
     env.close()
+
+
+@pytest.fixture(scope="session")
+def insertion_demos(tmp_path_factory):
+    """Two insertion demonstrations at 64x64, recorded once for every test that needs a real dataset."""
+    from policy_composer.recording.recipes import load_recipe
+    from policy_composer.recording.record import EnvSettings, record_recipe
+
+    root = tmp_path_factory.mktemp("ds") / "gear-insertion-demos"
+    record_recipe(load_recipe("gear-insertion-demos"), root, episodes=2, settings=EnvSettings(resolution=64), progress=False)
+    return root
+
+
+@pytest.fixture(scope="session")
+def act_checkpoint(insertion_demos, tmp_path_factory):
+    """lerobot-train's ACT, two steps on the insertion demos: (the pretrained_model folder, the trainer's log)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    out = tmp_path_factory.mktemp("act") / "run"
+    cmd = [str(Path(sys.executable).parent / "lerobot-train"), f"--dataset.repo_id=local/{insertion_demos.name}",
+           f"--dataset.root={insertion_demos}", "--policy.type=act", "--policy.pretrained_backbone_weights=null",
+           "--policy.push_to_hub=false", "--policy.device=cpu", "--steps=2", "--batch_size=2", "--num_workers=0",
+           f"--output_dir={out}", "--wandb.enable=false", "--log_freq=1", "--save_freq=2"]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=600,
+                         env={**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"})
+    return out / "checkpoints" / "last" / "pretrained_model", res

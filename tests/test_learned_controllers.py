@@ -1,0 +1,88 @@
+"""The CNN policy trains and reloads, refuses mismatched checkpoints, and runs as a controller; a lerobot-train
+checkpoint runs as a controller; the per-controller table command."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+
+from policies.cnn.configuration_cnn import CNNPolicyConfig
+from policies.cnn.controller import CNNController
+from policies.cnn.train import CheckpointError, load_cnn_policy, load_demonstrations, train_cnn_policy
+from policies.lerobot_policy import LeRobotPolicyController
+from policy_composer.controller_table import start_state
+
+TINY = dict(image_size=32, hidden_dim=64, num_mixtures=4, batch_size=32, epochs=8)
+
+
+@pytest.fixture(scope="module")
+def rgb_env():
+    env = gym.make("GearAssembly-v1", obs_mode="rgb", camera_width=64, camera_height=64)
+    yield env
+    env.close()
+
+
+def test_cnn_loss_falls_and_checkpoint_reloads(insertion_demos, tmp_path):
+    config = CNNPolicyConfig(**TINY)
+    data = load_demonstrations(insertion_demos, config, progress=False)
+    assert data["image"].shape[1:] == (3, 32, 32) and data["image"].dtype == torch.uint8
+    model, losses = train_cnn_policy(insertion_demos, config, out=tmp_path / "cnn", data=data, progress=False)
+    assert losses[-1] < losses[0] - 1.0, losses
+    again = load_cnn_policy(tmp_path / "cnn", camera="left_forearm", state_dim=8)
+    image, state = data["image"][:5].float() / 255, data["state"][:5]
+    torch.testing.assert_close(again.act(image, state), model.act(image, state))
+    with pytest.raises(CheckpointError, match="trained on camera 'left_forearm', but this controller reads 'head'"):
+        load_cnn_policy(tmp_path / "cnn", camera="head")
+    with pytest.raises(CheckpointError, match="state of size 8, this controller gives 16"):
+        load_cnn_policy(tmp_path / "cnn", state_dim=16)
+    with pytest.raises(CheckpointError, match="no CNN policy checkpoint"):
+        load_cnn_policy(tmp_path)
+
+
+def test_cnn_controller_acts_from_pixels_within_limits(insertion_demos, rgb_env, tmp_path):
+    config = CNNPolicyConfig(**{**TINY, "epochs": 2})
+    model, _ = train_cnn_policy(insertion_demos, config, out=tmp_path / "cnn", progress=False)
+    controller = CNNController(rgb_env, model, max_steps=5)
+    obs = start_state(rgb_env, 3, "insert")
+    assert controller.can_start(obs)
+    hold = rgb_env.unwrapped.hold_action()
+    controller.start(obs)
+    for _ in range(6):
+        action = controller.act(obs)
+        assert torch.isfinite(action).all()
+        torch.testing.assert_close(action[8:], hold[0, 8:].cpu())  # the right arm holds
+        obs, *_ = rgb_env.step(rgb_env.unwrapped.flat_to_dict_action(action))
+    assert controller.done(obs) and controller.outcome.value in ("failed", "stopped for safety", "done")
+    no_camera = gym.make("GearAssembly-v1", obs_mode="rgb", cameras=("head",), camera_width=32, camera_height=32)
+    with pytest.raises(ValueError, match="reads camera 'left_forearm', which this env does not render"):
+        CNNController(no_camera, model)
+    no_camera.close()
+
+
+def test_lerobot_policy_runs_as_a_controller(act_checkpoint, rgb_env):
+    checkpoint, res = act_checkpoint
+    assert res.returncode == 0, (res.stdout + res.stderr)[-2000:]
+    controller = LeRobotPolicyController(rgb_env, checkpoint, max_steps=3)
+    assert controller.name == "act_insert" and "sensor_data.head.rgb" in controller.obs_keys
+    obs = start_state(rgb_env, 3, "insert")
+    controller.start(obs)
+    action = controller.act(obs)
+    assert action.shape == (16,) and torch.isfinite(action).all()
+    with pytest.raises(FileNotFoundError, match="not a LeRobot policy checkpoint"):
+        LeRobotPolicyController(rgb_env, checkpoint.parent)
+
+
+def test_controller_table_command(tmp_path):
+    cmd = [str(Path(sys.executable).parent / "policy-composer"), "evaluate", "controllers", "--kinds", "MP",
+           "--trials", "1", "--seed", "1", "--out", str(tmp_path)]
+    out = subprocess.run(cmd, capture_output=True, text=True, check=True, timeout=600).stdout
+    assert "MP: pick 1/1, move 1/1, insert 1/1, full 1/1" in out
+    table = (tmp_path / "controllers.md").read_text()
+    assert "| MP | 1/1 (10/10) | 1/1 (10/10) | 1/1 (1/10) | 1/1 (1/10) |" in table
+    assert (tmp_path / "controllers.csv").read_text().count("\n") == 5
