@@ -56,9 +56,10 @@ REST_QPOS = np.array([0.0, np.pi / 8, 0.0, -np.pi * 5 / 8, 0.0, np.pi * 3 / 4, n
 # The left arm starts retracted above its own side of the table, hand down, clear of the peg.
 LEFT_START_QPOS = np.array([0.0, -0.25, 0.0, -2.55, 0.0, 2.30, np.pi / 4, 0.04, 0.04])
 HEAD_EYE, HEAD_TARGET = [0.35, -0.10, 0.70], [0.0, -0.10, 0.05]
-# Forearm cameras ride beside each hand (hand frame, z towards the fingers), looking at the fingertips
-# and what they hold: the left one from the +x side (the gear), the right one from -x (the plate and peg).
-FOREARM_VIEWS = {"left": ([0.12, 0.0, 0.05], [0.0, 0.0, 0.13]), "right": ([-0.12, 0.0, 0.05], [0.05, 0.0, 0.13])}
+# Forearm cameras ride beside each hand (hand frame, z towards the fingers), looking at the fingertips and what
+# they hold. The left one looks obliquely from behind the fingers' plane, so that at the pre-insertion pose it
+# sees the held gear over the peg and its offset along the fingers; the right one looks from -x at the plate.
+FOREARM_VIEWS = {"left": ([-0.08, 0.06, 0.08], [0.0, 0.0, 0.15]), "right": ([-0.12, 0.0, 0.05], [0.05, 0.0, 0.13])}
 GEAR_XY_CENTER = (0.0, -0.30)
 GEAR_XY_RANGE = (0.10, 0.06)  # half-ranges of the gear's uniform position on the table
 PLATE_GRIP = 0.024  # right finger position holding the plate
