@@ -15,13 +15,12 @@ from dataclasses import dataclass
 from enum import Enum
 
 import numpy as np
-import sapien
 import torch
 
 from policies.base import Controller
 from policies.planning import VELOCITY_LIMIT
 from tasks.gear_kinematics import JOINT_HIGH, JOINT_LOW
-from tasks.gear_kinematics import hand_down_quat, plate_direction
+from tasks.gear_kinematics import plate_direction
 
 GRIPPER_OPEN, GRIPPER_CLOSED = 1.0, -1.0
 CARRY_CLEARANCE = 0.03  # gear bottom above the peg top at the pre-insertion pose (m)
@@ -63,9 +62,6 @@ class SceneGeometry:
         d[2] = 0.0
         return d / np.linalg.norm(d)
 
-    def hand_down(self) -> np.ndarray:
-        return hand_down_quat(self.finger_dir())
-
     def gear(self) -> np.ndarray:
         return np0(self.env.gear.pose.p)
 
@@ -75,9 +71,9 @@ class SceneGeometry:
     def peg_top(self) -> np.ndarray:
         return np0(self.env.peg_top.p)
 
-    def pre_insertion_tcp(self) -> sapien.Pose:
-        """TCP pose that puts a centred gear's bottom CARRY_CLEARANCE above the peg top."""
-        return sapien.Pose(self.peg_top() + [0, 0, CARRY_CLEARANCE + self.grasp_height], self.hand_down())
+    def pre_insertion_tcp(self) -> np.ndarray:
+        """TCP position that puts a centred gear's bottom CARRY_CLEARANCE above the peg top."""
+        return self.peg_top() + [0, 0, CARRY_CLEARANCE + self.grasp_height]
 
     def info(self) -> dict:
         return {k: bool(v[0]) if v.dtype == torch.bool else float(v[0]) for k, v in self.env.evaluate().items()}

@@ -33,7 +33,7 @@ class MotionPlanningController(SubtaskController):
         finger = float(np0(obs["extra"]["state"])[7] / 2)
         module = self.env.peg_module.pose
         self.collision.set_scene(np0(self.env.right_arm.robot.get_qpos()), sapien.Pose(np0(module.p), np0(module.q)),
-                                 held=self.nominal_held_gear() if self.subtask.holds_gear else None, fingers=finger)
+                                 self.scene.spec, held=self.nominal_held_gear() if self.subtask.holds_gear else None, fingers=finger)
         q, segments = self.q9(obs), []
         for wp in waypoints:
             if wp.kind == "free":

@@ -69,9 +69,10 @@ class SceneCollisionModel:
     def _robot_link_geoms(self) -> list[int]:
         return [i for i, g in enumerate(self._robot_geom.geometryObjects) if "link0" not in g.name]
 
-    def set_scene(self, right_qpos: np.ndarray, peg_module_pose, table: bool = True,
+    def set_scene(self, right_qpos: np.ndarray, peg_module_pose, spec, table: bool = True,
                   held: HeldObject | None = None, fingers: float = 0.04) -> None:
-        """Place the obstacles for the next plans (world poses as sapien.Pose; right_qpos: 9 values)."""
+        """Place the obstacles for the next plans (world poses as sapien.Pose; right_qpos: 9 values; spec: the
+        env's GearSpec, for the peg module's shape)."""
         geom = self._robot_geom.copy()
         to_left = _se3(LEFT_BASE).inverse()
         obstacles = []
@@ -90,9 +91,6 @@ class SceneCollisionModel:
         for i, g in enumerate(self._robot_geom.geometryObjects):
             add(f"right_{g.name}", g.geometry, right_base * self._fk_gdata.oMg[i])
         # The peg module the right hand holds (see tasks.gear_geometry.build_peg_module).
-        from tasks.gear_geometry import GearSpec
-
-        spec = GearSpec()
         module = _se3(peg_module_pose)
         hx, hy, hz = spec.plate_half_size
         add("plate", coal.Box(2 * hx, 2 * hy, 2 * hz),

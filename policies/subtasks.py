@@ -96,7 +96,7 @@ class Move(Subtask):
         return info["gear_lifted"] and not info["gear_inserted"]
 
     def waypoints(self, ik, scene, q_now, grasp_offset):
-        _, q = ik_hand_down(ik, scene, scene.pre_insertion_tcp().p, q_now)
+        _, q = ik_hand_down(ik, scene, scene.pre_insertion_tcp(), q_now)
         return [Waypoint("free", q, GRIPPER_CLOSED, settle=6)]
 
     def succeeded(self, info):

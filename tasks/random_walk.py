@@ -10,7 +10,6 @@ at the far left (its left controller reaches state 0 in one activation), so the 
 from __future__ import annotations
 
 import gymnasium as gym
-import numpy as np
 from gymnasium import spaces
 
 LEFT, RIGHT = 0, 1

@@ -16,7 +16,7 @@ from policies.base import InitiationError
 from policies.random_walk import RANDOM_WALK_OPTIONS, random_walk_controllers
 from policy_composer.mdp import MDPConfig, expected_activations, make_selector, run_mdp
 from selector.core import Selector
-from selector.tabular import TabularDynamics, TabularGoalScore, model_states
+from selector.tabular import TabularDynamics, model_states
 from tasks.random_walk import RIGHT, RandomWalkEnv
 
 

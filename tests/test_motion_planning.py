@@ -30,7 +30,7 @@ def _scene(env) -> SceneCollisionModel:
     u = env.unwrapped
     model = SceneCollisionModel()
     pose = u.peg_module.pose
-    model.set_scene(u.right_arm.robot.get_qpos()[0].numpy(), sapien.Pose(pose.p[0].numpy(), pose.q[0].numpy()))
+    model.set_scene(u.right_arm.robot.get_qpos()[0].numpy(), sapien.Pose(pose.p[0].numpy(), pose.q[0].numpy()), u.gear_spec)
     return model
 
 

@@ -16,7 +16,7 @@ import torch
 
 import tasks  # noqa: F401
 from policy_composer.recording import journal
-from policy_composer.recording.catalog import HubUnreachable, push_dataset, summarize
+from policy_composer.recording.catalog import HubUnreachable, push_dataset
 from policy_composer.recording.features import DatasetError, open_dataset
 from policy_composer.recording.recipes import RecipeError, available_recipes, load_recipe
 from policy_composer.recording.record import EnvSettings, record_recipe

@@ -67,7 +67,7 @@ def format_summary(summary: dict) -> str:
     rate = summary["success_rate"]
     lines.append(f"  success:     {'unknown (no next.success)' if rate is None else f'{100 * rate:.0f}%'}")
     if "splits" in summary:
-        lines.append(f"  splits:      " + ", ".join(f"{k} {v}" for k, v in summary["splits"].items()))
+        lines.append("  splits:      " + ", ".join(f"{k} {v}" for k, v in summary["splits"].items()))
     lines.append("  cameras:     " + ", ".join(f"{c} {'x'.join(map(str, s))}" for c, s in summary["cameras"].items()))
     if summary["controllers"]:
         lines.append(f"  controllers: {', '.join(summary['controllers'])}")
