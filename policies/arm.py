@@ -157,6 +157,18 @@ class LeftArmController(Controller):
         return ", ".join(f"{k}={info[k]}" for k in ("gear_grasped", "gear_lifted", "gear_at_peg", "success"))
 
 
+def run_activation(env, controller: Controller, obs, seed: int | None = None, max_steps: int = 400):
+    """Start `controller` from obs and step the env until it terminates (or max_steps); returns the last observation.
+    The controller's `outcome` and `reason` say how the activation ended."""
+    u = env.unwrapped
+    controller.start(obs, seed=seed)
+    for _ in range(max_steps):
+        if controller.done(obs):
+            break
+        obs, *_ = env.step(u.flat_to_dict_action(controller.act(obs)))
+    return obs
+
+
 class ScriptedController(LeftArmController):
     """A controller that plans its whole activation at the start as segments of joint targets (MP, DMP)."""
 

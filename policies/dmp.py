@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from policies.arm import Segment
+from policies.arm import Outcome, Segment, run_activation
 from policies.planning import VELOCITY_LIMIT, time_parameterize
 from policies.subtasks import SUBTASKS, SubtaskController, Waypoint
 
@@ -141,7 +141,6 @@ def fit_dmp_library(env, seeds: list[int], config: DMPConfig | None = None, prog
     from policies.motion_planning import MotionPlanningController
 
     config = config or DMPConfig(dt=1.0 / float(env.unwrapped.control_freq))
-    u = env.unwrapped
     demos: dict[str, list[list[np.ndarray | None]]] = {n: [] for n in SUBTASKS}
     for seed in tqdm(seeds, desc="planner demonstrations for the DMPs", unit="episode", disable=not progress):
         obs, _ = env.reset(seed=seed)
@@ -150,18 +149,14 @@ def fit_dmp_library(env, seeds: list[int], config: DMPConfig | None = None, prog
             if not mp.can_start(obs):
                 break
             start = mp.q9(obs)[:7]
-            mp.start(obs, seed=seed)
+            obs = run_activation(env, mp, obs, seed)
             per_wp = []
             for seg, wp in zip(mp.segments, mp.waypoints):
                 short = wp.kind == "hold" or len(seg.q) < MIN_DEMO_STEPS
                 per_wp.append(None if short else np.vstack([start, seg.q]))
                 start = seg.q[-1]
             demos[name].append(per_wp)
-            steps = 0
-            while not mp.done(obs) and steps < 400:
-                obs, *_ = env.step(u.flat_to_dict_action(mp.act(obs)))
-                steps += 1
-            if mp.outcome.value != "done":
+            if mp.outcome is not Outcome.DONE:
                 break
     library = DMPLibrary(config, demonstrations=len(seeds))
     for name, episodes in demos.items():
@@ -173,6 +168,3 @@ def fit_dmp_library(env, seeds: list[int], config: DMPConfig | None = None, prog
             library.primitives[name].append(fit_primitive(movement, config) if len(movement) > len(episodes) // 2 else None)
     return library
 
-
-def dmp_controllers(env, library: DMPLibrary, max_grasp_offset: float = 0.012) -> list[DMPController]:
-    return [DMPController(env, SUBTASKS[n], library, max_grasp_offset=max_grasp_offset) for n in ("pick", "move", "insert")]

@@ -17,7 +17,7 @@ import sapien
 
 from policies.arm import Segment, np0
 from policies.planning import HeldObject, PlanningError, SceneCollisionModel, plan_rrt_connect, time_parameterize
-from policies.subtasks import SUBTASKS, SubtaskController, Waypoint
+from policies.subtasks import SubtaskController, Waypoint
 
 
 class MotionPlanningController(SubtaskController):
@@ -73,6 +73,3 @@ class MotionPlanningController(SubtaskController):
         spec, h = self.scene.spec, self.scene.grasp_height
         return HeldObject(spec.outer_radius, spec.height, tcp * pin.SE3(np.eye(3), np.array([0, 0, h - spec.height / 2])))
 
-
-def motion_planning_controllers(env, max_grasp_offset: float = 0.012) -> list[MotionPlanningController]:
-    return [MotionPlanningController(env, SUBTASKS[n], max_grasp_offset=max_grasp_offset) for n in ("pick", "move", "insert")]

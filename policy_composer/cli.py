@@ -9,13 +9,14 @@ import time
 from pathlib import Path
 
 
-def _make_env(obs_mode: str, args: argparse.Namespace):
+def _make_env(obs_mode: str, args: argparse.Namespace, cameras: tuple[str, ...] | None = None):
     import gymnasium as gym
 
     import tasks  # noqa: F401  (registers GearAssembly-v1)
 
+    kwargs = {} if cameras is None else {"cameras": cameras}
     return gym.make("GearAssembly-v1", obs_mode=obs_mode, camera_width=args.resolution, camera_height=args.resolution,
-                    clearance=args.clearance / 1000.0)
+                    clearance=args.clearance / 1000.0, **kwargs)
 
 
 def _expert(env, args: argparse.Namespace):
@@ -163,12 +164,10 @@ def cmd_train_dmp(args: argparse.Namespace) -> int:
 
 
 def cmd_evaluate_controllers(args: argparse.Namespace) -> int:
-    """Paper Table I, rows MP, DMP, CNN (and a LeRobot policy if given)."""
-    import gymnasium as gym
+    """Paper Table I, rows MP, DMP and CNN."""
     import torch
     from tqdm import tqdm
 
-    import tasks  # noqa: F401
     from policies.cnn.controller import CNNController
     from policies.cnn.train import load_cnn_policy
     from policies.dmp import DMPController, DMPLibrary
@@ -179,13 +178,10 @@ def cmd_evaluate_controllers(args: argparse.Namespace) -> int:
     torch.set_num_threads(1)
     kinds = args.kinds.split(",")
     offset = args.grasp_offset / 1000.0
-    make = lambda obs_mode, cameras=("head", "left_forearm", "right_forearm"): gym.make(  # noqa: E731
-        "GearAssembly-v1", obs_mode=obs_mode, cameras=cameras, camera_width=args.resolution,
-        camera_height=args.resolution, clearance=args.clearance / 1000.0)
     rows = {}
     for kind in kinds:
         if kind in ("MP", "DMP"):
-            env = make("state_dict")
+            env = _make_env("state_dict", args)
             if kind == "MP":
                 ctrls = {n: MotionPlanningController(env, s, max_grasp_offset=offset) for n, s in SUBTASKS.items()}
             else:
@@ -193,7 +189,7 @@ def cmd_evaluate_controllers(args: argparse.Namespace) -> int:
                 ctrls = {n: DMPController(env, s, library, max_grasp_offset=offset) for n, s in SUBTASKS.items()}
         elif kind == "CNN":
             policy = load_cnn_policy(args.cnn)
-            env = make("rgb", cameras=(policy.config.camera,))
+            env = _make_env("rgb", args, cameras=(policy.config.camera,))
             ctrls = {"insert": CNNController(env, policy)}
         else:
             raise SystemExit(f"unknown controller kind {kind!r}; use MP, DMP, CNN")

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from policies.arm import Outcome
+from policies.arm import Outcome, run_activation
 
 SUBTASK_COLUMNS = ("pick", "move", "insert", "full")
 START_PHASE = {"move": "carry", "insert": "insert"}  # the expert phase at which a subtask's start state is taken
@@ -70,17 +70,6 @@ def _expert_until(env, seed: int, subtask: str, max_steps: int):
     return None
 
 
-def run_controller(env, controller, obs, seed: int, max_steps: int = 400):
-    """One activation from obs; returns the last observation (the controller's outcome is on it)."""
-    u = env.unwrapped
-    controller.start(obs, seed=seed)
-    for _ in range(max_steps):
-        if controller.done(obs):
-            break
-        obs, *_ = env.step(u.flat_to_dict_action(controller.act(obs)))
-    return obs
-
-
 def evaluate_kind(env, controllers: dict[str, object], trials: int, first_seed: int = 0,
                   on_trial: Callable[[], None] | None = None) -> dict[str, Cell]:
     """One row: `controllers` maps subtask -> controller (missing subtasks are not run)."""
@@ -98,7 +87,7 @@ def evaluate_kind(env, controllers: dict[str, object], trials: int, first_seed: 
             for s in sequence:
                 c = controllers[s]
                 try:
-                    obs = run_controller(env, c, obs, seed)
+                    obs = run_activation(env, c, obs, seed)
                 except InitiationError as e:
                     outcome, why = Outcome.FAILED, str(e)
                     break

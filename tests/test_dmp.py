@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from policies.arm import Outcome
+from policies.arm import Outcome, run_activation
 from policies.dmp import DMPConfig, DMPController, DMPLibrary, fit_dmp_library, fit_primitive, rollout
 from policies.planning import time_parameterize
 from policies.subtasks import SUBTASKS
@@ -42,11 +42,7 @@ def test_dmps_learned_from_the_planner_complete_the_task(state_env, tmp_path):
     u = state_env.unwrapped
     for name in ("pick", "move", "insert"):
         controller = DMPController(state_env, SUBTASKS[name], loaded, grasp_offset=0.0)
-        controller.start(obs, seed=1)
-        for _ in range(300):
-            if controller.done(obs):
-                break
-            obs, *_ = state_env.step(u.flat_to_dict_action(controller.act(obs)))
+        obs = run_activation(state_env, controller, obs, seed=1, max_steps=300)
         assert controller.outcome is Outcome.DONE, (name, controller.reason)
     assert bool(u.evaluate()["success"][0])
 

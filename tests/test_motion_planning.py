@@ -7,23 +7,13 @@ import numpy as np
 import pytest
 import sapien
 
-from policies.arm import Outcome, ScriptedController, Segment
+from policies.arm import Outcome, ScriptedController, Segment, run_activation
 from policies.base import InitiationError
 from policies.motion_planning import MotionPlanningController
 from policies.subtasks import SUBTASKS
 from policies.planning import (VELOCITY_LIMIT, PlanningError, SceneCollisionModel, plan_rrt_connect,
                                time_parameterize)
 from tasks.gear_assembly import LEFT_START_QPOS
-
-
-def _run(env, controller, obs, seed, limit=400):
-    controller.start(obs, seed=seed)
-    u = env.unwrapped
-    steps = 0
-    while not controller.done(obs) and steps < limit:
-        obs, *_ = env.step(u.flat_to_dict_action(controller.act(obs)))
-        steps += 1
-    return obs
 
 
 def _scene(env) -> SceneCollisionModel:
@@ -65,11 +55,11 @@ def test_centred_grasp_inserts_and_offset_grasp_fails(state_env):
         pick, move, insert = (MotionPlanningController(state_env, SUBTASKS[n], grasp_offset=offset)
                               for n in ("pick", "move", "insert"))
         assert pick.can_start(obs) and not move.can_start(obs) and not insert.can_start(obs)
-        obs = _run(state_env, pick, obs, seed=1)
+        obs = run_activation(state_env, pick, obs, seed=1)
         assert pick.outcome is Outcome.DONE, pick.reason
-        obs = _run(state_env, move, obs, seed=1)
+        obs = run_activation(state_env, move, obs, seed=1)
         assert move.outcome is Outcome.DONE, move.reason
-        obs = _run(state_env, insert, obs, seed=1)
+        obs = run_activation(state_env, insert, obs, seed=1)
         outcomes[offset] = (insert.outcome, bool(state_env.unwrapped.evaluate()["success"][0]))
     assert outcomes[0.0] == (Outcome.DONE, True)
     assert outcomes[0.009] == (Outcome.FAILED, False)  # 9 mm off with 2 mm clearance: open loop cannot seat it
