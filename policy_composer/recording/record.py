@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from policy_composer.recording import journal
 from policy_composer.recording.features import read_sidecar
 from policy_composer.recording.recipes import Recipe, RecipeError
 
@@ -50,6 +51,8 @@ def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None,
     torch.set_num_threads(1)  # the encoder threads need the second core
     root = Path(root)
     target = episodes if episodes is not None else recipe.episodes
+    if resume:
+        journal.recover(root)  # before reading the sidecar: an interrupted save may have written it already
     previous = read_sidecar(root) if resume else {}
     if previous:
         if previous.get("recipe") != recipe.name:
