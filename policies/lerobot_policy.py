@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from policies.cnn.controller import check_camera
-from policies.cnn.train import to_model_image
+from policy_composer.recording.frames import to_model_image
 from policies.subtasks import SUBTASKS, LearnedController, Subtask
 from tasks.gear_assembly import ACTION_NAMES, STATE_NAMES
 

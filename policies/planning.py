@@ -10,18 +10,16 @@ plans in well under a second. Paths are then time-parameterised to the Panda's j
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import coal
 import numpy as np
 import pinocchio as pin
-from mani_skill import PACKAGE_ASSET_DIR
 
 from tasks.gear_assembly import LEFT_BASE, RIGHT_BASE
-from tasks.gear_kinematics import JOINT_HIGH, JOINT_LOW
+from tasks.gear_kinematics import JOINT_HIGH, JOINT_LOW, PANDA_DIR
+from tasks.gear_kinematics import PANDA_SRDF as SRDF
+from tasks.gear_kinematics import PANDA_URDF as URDF
 
-PANDA_DIR = Path(PACKAGE_ASSET_DIR) / "robots" / "panda"
-URDF, SRDF = PANDA_DIR / "panda_v2.urdf", PANDA_DIR / "panda_v2.srdf"
 # Franka Panda joint velocity limits (rad/s), as in the URDF.
 VELOCITY_LIMIT = np.array([2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61])
 TABLE_HALF = (1.2, 1.2, 0.05)  # a slab whose top is the table surface (z = 0)

@@ -9,12 +9,13 @@ import time
 from pathlib import Path
 
 
-def _make_env(obs_mode: str, args: argparse.Namespace, cameras: tuple[str, ...] | None = None):
+def _make_env(obs_mode: str, args: argparse.Namespace, cameras: tuple[str, ...] | None = None, **kwargs):
     import gymnasium as gym
 
     import tasks  # noqa: F401  (registers GearAssembly-v1)
 
-    kwargs = {} if cameras is None else {"cameras": cameras}
+    if cameras is not None:
+        kwargs["cameras"] = cameras
     return gym.make("GearAssembly-v1", obs_mode=obs_mode, camera_width=args.resolution, camera_height=args.resolution,
                     clearance=args.clearance / 1000.0, **kwargs)
 
@@ -79,13 +80,15 @@ def cmd_record(args: argparse.Namespace) -> int:
     """Record a recipe's dataset (see datasets/recipes/) into a LeRobotDataset."""
     from policy_composer.recording.catalog import format_summary, summarize
     from policy_composer.recording.recipes import load_recipe
+    from policies.library import LibrarySources
     from policy_composer.recording.record import EnvSettings, record_recipe
 
     recipe = load_recipe(args.recipe)
     root = Path(args.root) if args.root else Path("datasets") / recipe.name
     try:
         record_recipe(recipe, root, episodes=args.episodes, seed=args.seed, resume=args.resume,
-                      settings=EnvSettings(resolution=args.resolution, clearance_mm=args.clearance))
+                      settings=EnvSettings(resolution=args.resolution, clearance_mm=args.clearance),
+                      sources=LibrarySources(dmp=args.dmp, cnn=args.cnn))
     except KeyboardInterrupt:
         print(f"\ninterrupted: every finished episode is saved in {root}; continue with --resume", file=sys.stderr)
         return 130
@@ -143,7 +146,8 @@ def cmd_train_policy(args: argparse.Namespace) -> int:
 
     torch.set_num_threads(args.threads)
     config = CNNPolicyConfig(camera=args.camera, backbone=args.backbone, epochs=args.epochs, image_size=args.image_size,
-                             num_mixtures=args.mixtures, batch_size=args.batch_size, seed=args.seed)
+                             num_mixtures=args.mixtures, batch_size=args.batch_size, seed=args.seed,
+                             action_space=args.action_space, shift=args.shift)
     t0 = time.time()
     _, losses = train_cnn_policy(args.dataset, config, out=args.out)
     print(f"trained {args.out} in {time.time() - t0:.0f} s: nll {losses[0]:.3f} -> {losses[-1]:.3f} over {len(losses)} epochs")
@@ -168,37 +172,92 @@ def cmd_evaluate_controllers(args: argparse.Namespace) -> int:
     import torch
     from tqdm import tqdm
 
-    from policies.cnn.controller import CNNController
-    from policies.cnn.train import load_cnn_policy
-    from policies.dmp import DMPController, DMPLibrary
-    from policies.motion_planning import MotionPlanningController
-    from policies.subtasks import SUBTASKS
+    from policies.library import LibrarySources, build_library, cameras_needed, names_of_kind
     from policy_composer.controller_table import evaluate_kind, write_table
 
     torch.set_num_threads(1)
-    kinds = args.kinds.split(",")
-    offset = args.grasp_offset / 1000.0
+    sources = LibrarySources(dmp=args.dmp, cnn=args.cnn, max_grasp_offset=args.grasp_offset / 1000.0)
     rows = {}
-    for kind in kinds:
-        if kind in ("MP", "DMP"):
-            env = _make_env("state_dict", args)
-            if kind == "MP":
-                ctrls = {n: MotionPlanningController(env, s, max_grasp_offset=offset) for n, s in SUBTASKS.items()}
-            else:
-                library = DMPLibrary.load(args.dmp)
-                ctrls = {n: DMPController(env, s, library, max_grasp_offset=offset) for n, s in SUBTASKS.items()}
-        elif kind == "CNN":
-            policy = load_cnn_policy(args.cnn)
-            env = _make_env("rgb", args, cameras=(policy.config.camera,))
-            ctrls = {"insert": CNNController(env, policy)}
-        else:
-            raise SystemExit(f"unknown controller kind {kind!r}; use MP, DMP, CNN")
-        n_cols = sum(1 for c in ("pick", "move", "insert") if c in ctrls) + (len(ctrls) == 3)
+    for kind in args.kinds.split(","):
+        names = names_of_kind(kind)
+        cameras = cameras_needed(names, sources)
+        env = _make_env("rgb" if cameras else "state_dict", args, cameras=cameras or None)
+        ctrls = {c.subtask.name: c for c in build_library(env, names, sources).values()}
+        n_cols = len(ctrls) + (len(ctrls) == 3)
         with tqdm(total=n_cols * args.trials, desc=f"{kind} controllers", unit="trial") as bar:
             rows[kind] = evaluate_kind(env, ctrls, args.trials, args.seed, on_trial=bar.update)
         env.close()
         print(f"{kind}: " + ", ".join(f"{c} {cell}" for c, cell in rows[kind].items()))
     print(f"table: {write_table(rows, Path(args.out))}")
+    return 0
+
+
+def cmd_train_world_model(args: argparse.Namespace) -> int:
+    """The VAE and one dynamics model per controller (paper: Controller Dynamics Modelling)."""
+    import torch
+
+    from selector.configuration import DynamicsConfig, VAEConfig
+    from selector.train import train_world_model
+
+    torch.set_num_threads(args.threads)
+    timings = train_world_model(
+        args.rollouts, args.demos, args.out,
+        VAEConfig(camera=args.camera, latent_dim=args.latent_dim, epochs=args.vae_epochs, image_size=args.image_size),
+        DynamicsConfig(frame_skip=args.frame_skip, epochs=args.dynamics_epochs, num_mixtures=args.mixtures),
+        controllers=args.controllers.split(",") if args.controllers else None)
+    for what, seconds in timings.items():
+        print(f"trained {what} in {seconds:.0f} s")
+    return 0
+
+
+def cmd_train_goal_score(args: argparse.Namespace) -> int:
+    """One goal scorer per camera on the training full-task demos (paper: Goal Score Evaluation)."""
+    import torch
+
+    from selector.configuration import GoalScoreConfig
+    from selector.train import train_goal_scores
+
+    torch.set_num_threads(args.threads)
+    config = GoalScoreConfig(epochs=args.epochs, num_mixtures=args.mixtures, image_size=args.image_size)
+    for what, seconds in train_goal_scores(args.demos, args.out, tuple(args.cameras.split(",")), config).items():
+        print(f"trained {what} in {seconds:.0f} s")
+    return 0
+
+
+def cmd_evaluate_goal_score(args: argparse.Namespace) -> int:
+    """Each camera's goal score on the held-out full-task demos: curves and rank correlation."""
+    from selector.evaluate import evaluate_goal_scores
+
+    metrics = evaluate_goal_scores(args.models, args.demos, args.out, tuple(args.cameras.split(",")))
+    for camera, m in metrics.items():
+        print(f"{camera}: Spearman {m['spearman']:.3f}, mean abs. error {m['mae']:.3f} over {m['episodes']} episodes")
+    print(f"figure: {Path(args.out) / 'goal_score.png'}")
+    return 0
+
+
+def cmd_compose(args: argparse.Namespace) -> int:
+    """The selector composes the whole library in GearAssembly-v1 rollouts (paper Table I, composed row)."""
+    import torch
+
+    from policies.library import LeRobotSource, LibrarySources, build_library, cameras_needed
+    from policy_composer.composition import run_composition
+    from selector.compose import ComposeConfig
+    from selector.world_model import GearWorldModel
+
+    torch.set_num_threads(1)
+    lerobot = tuple(LeRobotSource(*spec.split(":", 1)) for spec in args.lerobot)
+    sources = LibrarySources(dmp=args.dmp, cnn=args.cnn, lerobot=lerobot, max_grasp_offset=args.grasp_offset / 1000.0)
+    world = GearWorldModel.load(args.models)
+    names = [n for n in world.dynamics]
+    cameras = tuple(dict.fromkeys((world.camera, *cameras_needed(names, sources))))
+    env = _make_env("rgb", args, cameras=cameras, knock_out_step=args.knock_out_step)
+    library = build_library(env, names, sources)
+    config = ComposeConfig(horizon=args.horizon, samples=args.samples, reselect_every=args.reselect_every)
+    episodes = run_composition(env, library, world, config, list(range(args.seed, args.seed + args.episodes)),
+                               Path(args.out), videos=args.videos)
+    env.close()
+    ok = sum(e.success for e in episodes)
+    print(f"composed: {ok}/{len(episodes)} full-task successes -> {Path(args.out) / 'summary.md'}")
     return 0
 
 
@@ -244,6 +303,9 @@ def build_parser() -> argparse.ArgumentParser:
     tr_policy.add_argument("--epochs", type=int, default=200)
     tr_policy.add_argument("--image-size", type=int, default=64)
     tr_policy.add_argument("--mixtures", type=int, default=24)
+    tr_policy.add_argument("--action-space", default="hand", choices=("hand", "joint"),
+                           help="hand: next TCP displacement in the hand frame (IK to joint targets); joint: joint-target deltas")
+    tr_policy.add_argument("--shift", type=int, default=4, help="random-shift augmentation in pixels (0: none)")
     tr_policy.add_argument("--batch-size", type=int, default=120)
     tr_policy.add_argument("--seed", type=int, default=0)
     tr_policy.add_argument("--threads", type=int, default=2)
@@ -256,6 +318,54 @@ def build_parser() -> argparse.ArgumentParser:
     tr_dmp.add_argument("--out", default="results/models/dmp")
     tr_dmp.set_defaults(func=cmd_train_dmp)
 
+    tr_world = tr_sub.add_parser("world-model", help="the VAE and one latent dynamics model per controller")
+    tr_world.add_argument("--rollouts", default="datasets/gear-controller-rollouts")
+    tr_world.add_argument("--demos", default="datasets/gear-full-task-demos")
+    tr_world.add_argument("--camera", default="head", choices=("head", "left_forearm", "right_forearm"))
+    tr_world.add_argument("--image-size", type=int, default=64)
+    tr_world.add_argument("--latent-dim", type=int, default=32)
+    tr_world.add_argument("--vae-epochs", type=int, default=30)
+    tr_world.add_argument("--dynamics-epochs", type=int, default=60)
+    tr_world.add_argument("--frame-skip", type=int, default=5, help="control steps per dynamics step")
+    tr_world.add_argument("--mixtures", type=int, default=5, help="mixture components of each dynamics model")
+    tr_world.add_argument("--controllers", default=None, help="comma-separated (default: every controller recorded)")
+    tr_world.add_argument("--threads", type=int, default=2)
+    tr_world.add_argument("--out", default="results/models/world")
+    tr_world.set_defaults(func=cmd_train_world_model)
+    tr_goal = tr_sub.add_parser("goal-score", help="one goal scorer per camera on the full-task demos")
+    tr_goal.add_argument("--demos", default="datasets/gear-full-task-demos")
+    tr_goal.add_argument("--cameras", default="head,left_forearm,right_forearm")
+    tr_goal.add_argument("--epochs", type=int, default=60)
+    tr_goal.add_argument("--image-size", type=int, default=64)
+    tr_goal.add_argument("--mixtures", type=int, default=24)
+    tr_goal.add_argument("--threads", type=int, default=2)
+    tr_goal.add_argument("--out", default="results/models/world", help="the world-model folder (its VAE, if any, is used)")
+    tr_goal.set_defaults(func=cmd_train_goal_score)
+
+    ev_goal = ev_sub.add_parser("goal-score", help="each camera's goal score on held-out full-task demos")
+    ev_goal.add_argument("--models", default="results/models/world")
+    ev_goal.add_argument("--demos", default="datasets/gear-full-task-demos")
+    ev_goal.add_argument("--cameras", default="head,left_forearm,right_forearm")
+    ev_goal.add_argument("--out", default="results/goal_score")
+    ev_goal.set_defaults(func=cmd_evaluate_goal_score)
+
+    compose = sub.add_parser("compose", help="the selector composes the library in GearAssembly-v1 rollouts")
+    env_options(compose)
+    compose.add_argument("--episodes", type=int, default=10)
+    compose.add_argument("--models", default="results/models/world", help="world-model folder (train world-model, goal-score)")
+    compose.add_argument("--dmp", default="results/models/dmp")
+    compose.add_argument("--cnn", default="results/models/cnn_insert")
+    compose.add_argument("--lerobot", action="append", default=[], metavar="PATH:SUBTASK",
+                         help="add a lerobot checkpoint as a controller for SUBTASK (needs its own dynamics model)")
+    compose.add_argument("--horizon", type=int, default=10)
+    compose.add_argument("--samples", type=int, default=16)
+    compose.add_argument("--reselect-every", type=int, default=None, help="also decide every this many control steps")
+    compose.add_argument("--knock-out-step", type=int, default=None,
+                         help="perturbation: knock the gear out of the gripper at this control step (or when next lifted)")
+    compose.add_argument("--videos", type=int, default=1, help="episodes to write a video of")
+    compose.add_argument("--out", default="results/compose")
+    compose.set_defaults(func=cmd_compose)
+
     record = sub.add_parser("record", help="record a dataset recipe (datasets/recipes/) into a LeRobotDataset")
     record.add_argument("recipe", help="recipe name (gear-insertion-demos, gear-full-task-demos, "
                                        "gear-controller-rollouts) or path of a .toml recipe")
@@ -265,6 +375,8 @@ def build_parser() -> argparse.ArgumentParser:
     record.add_argument("--resolution", type=int, default=128, help="camera width and height in pixels")
     record.add_argument("--clearance", type=float, default=2.0, help="radial clearance between peg and hole, mm")
     record.add_argument("--seed", type=int, default=0, help="first seed (with --resume: the dataset's next one)")
+    record.add_argument("--dmp", default="results/models/dmp", help="DMP library (recipes that run the controllers)")
+    record.add_argument("--cnn", default="results/models/cnn_insert", help="CNN checkpoint (recipes that run the controllers)")
     record.set_defaults(func=cmd_record)
 
     mdp = sub.add_parser("mdp", help="the paper's random-walk MDP experiments (19 and 100 states)")
@@ -291,6 +403,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from policies.cnn.train import CheckpointError
+    from policies.library import LibraryError
     from policy_composer.recording.features import DatasetError
     from policy_composer.recording.recipes import RecipeError
 
@@ -299,7 +413,7 @@ def main(argv: list[str] | None = None) -> int:
         os.environ.setdefault("HF_HUB_OFFLINE", "1")
     try:
         return args.func(args)
-    except (DatasetError, RecipeError, FileExistsError) as e:
+    except (DatasetError, RecipeError, CheckpointError, LibraryError, FileExistsError, FileNotFoundError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
 

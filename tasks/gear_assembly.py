@@ -88,6 +88,7 @@ class GearAssemblyEnv(BaseEnv):
         camera_height: int = 128,
         clearance: float = 0.002,
         robot_init_qpos_noise: float = 0.02,
+        knock_out_step: int | None = None,
         **kwargs,
     ):
         robot_uids = tuple(robot_uids) if not isinstance(robot_uids, str) else robot_uids
@@ -105,6 +106,10 @@ class GearAssemblyEnv(BaseEnv):
         self.camera_size = (int(camera_width), int(camera_height))
         self.gear_spec = GearSpec(clearance=clearance)
         self.robot_init_qpos_noise = robot_init_qpos_noise
+        # Perturbation: from this control step on, the first time the gear is in the left gripper it is knocked
+        # out onto the table (to test that a composition recovers). None: never.
+        self.knock_out_step = knock_out_step
+        self.knocked_out = False
         # Without CUDA, render on the CPU (lavapipe) directly instead of warning and falling back.
         kwargs.setdefault("render_backend", "gpu" if torch.cuda.is_available() else "cpu")
         super().__init__(*args, robot_uids=robot_uids, control_mode=control_mode, **kwargs)
@@ -171,6 +176,20 @@ class GearAssemblyEnv(BaseEnv):
             self.gear.set_pose(Pose.create_from_pq(p=xyz, q=random_quaternions(b, lock_x=True, lock_y=True)))
             self._refresh_kinematics()
             self._attach_peg_module()
+            self._control_steps, self.knocked_out = 0, False
+
+    def knock_gear_out(self) -> None:
+        """Knock the gear out of the gripper: it lands flat somewhere else on the table, at rest."""
+        with torch.device(self.device):
+            b = self.num_envs
+            xyz = torch.zeros((b, 3))
+            u = torch.as_tensor(self._episode_rng.uniform(-1, 1, (b, 2)), dtype=torch.float32)
+            xyz[:, 0] = GEAR_XY_CENTER[0] + u[:, 0] * GEAR_XY_RANGE[0]
+            xyz[:, 1] = GEAR_XY_CENTER[1] + u[:, 1] * GEAR_XY_RANGE[1]
+            self.gear.set_pose(Pose.create_from_pq(p=xyz, q=random_quaternions(b, lock_x=True, lock_y=True)))
+            self.gear.set_linear_velocity(torch.zeros((b, 3)))
+            self.gear.set_angular_velocity(torch.zeros((b, 3)))
+        self.knocked_out = True
 
     def _refresh_kinematics(self):
         if self.gpu_sim_enabled:  # link poses follow qpos only after a GPU kinematics update
@@ -184,6 +203,10 @@ class GearAssemblyEnv(BaseEnv):
     def _after_control_step(self):
         # The peg module is rigidly attached to the right hand: follow it if the right arm moves.
         self._attach_peg_module()
+        self._control_steps += 1
+        if (self.knock_out_step is not None and not self.knocked_out and self._control_steps >= self.knock_out_step
+                and bool(self.evaluate()["gear_lifted"].any())):
+            self.knock_gear_out()
 
     # ---------------------------------------------------------------- state
     @property

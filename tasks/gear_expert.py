@@ -36,10 +36,11 @@ class ExpertConfig:
     release_height: float = 0.012  # gear bottom above the plate when the gripper opens (m)
     seed: int | None = None  # grasp-offset RNG; None: drawn from the env's episode seed
     closed_loop: bool = True  # False: carry and insert assume a centred grasp (what an open-loop planner knows)
-    # Teleoperator style (for demonstrations): arrive above the peg off by up to `arrival_error`, pause a
-    # random while, then correct with a per-episode gain and speed while the hand wobbles (`wobble`, m).
+    # Teleoperator style (for demonstrations): carry roughly (as if the grasp were centred, off by up to a further
+    # `arrival_error`), so the gear arrives above the peg off by its grasp offset as after a planner's carry;
+    # pause a random while, then correct with a per-episode gain and speed while the hand wobbles (`wobble`, m).
     teleop: bool = False
-    arrival_error: float = 0.008
+    arrival_error: float = 0.004
     wobble: float = 0.0008
 
 
@@ -73,8 +74,11 @@ class GearAssemblyExpert:
         return sapien.Pose(self._cmd_p, self._cmd_q), dist
 
     def _gear_world_p(self) -> np.ndarray:
-        """The true gear position (privileged) closed loop; open loop, where a centred grasp would put it."""
-        if self.config.closed_loop or self.phase in ("approach", "descend"):
+        """Where the expert takes the gear to be: its true position (privileged) closed loop; where a centred grasp
+        would put it open loop, and in the teleoperator's carry (rough, like a planner's: the operator looks
+        closely only while inserting)."""
+        nominal = not self.config.closed_loop or (self.config.teleop and self.phase == "carry")
+        if not nominal or self.phase in ("approach", "descend"):
             return self._np(self.env.gear.pose.p)
         return self._np(self.env.left_arm.tcp.pose.p) - [0.0, 0.0, self._grasp_height]
 

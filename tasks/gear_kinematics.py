@@ -3,9 +3,15 @@ hand-down grasp orientation that the expert and the controllers share."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import sapien
+from mani_skill import PACKAGE_ASSET_DIR
 from transforms3d.quaternions import mat2quat
+
+PANDA_DIR = Path(PACKAGE_ASSET_DIR) / "robots" / "panda"
+PANDA_URDF, PANDA_SRDF = PANDA_DIR / "panda_v2.urdf", PANDA_DIR / "panda_v2.srdf"
 
 ARM_MASK = np.array([1] * 7 + [0, 0], dtype=np.int32)  # solve for the 7 arm joints, keep the fingers
 # Franka Panda arm joint limits (rad), as in the URDF.
@@ -44,6 +50,29 @@ class LeftArmIK:
                 if best is None or cost < best[0]:
                     best = (cost, quat, q)
         return None if best is None else (best[1], best[2])
+
+
+class PandaForwardKinematics:
+    """TCP poses of a Panda from its arm joints, in its base frame. Needs no simulator, so recorded datasets
+    can be turned into Cartesian quantities offline (pinocchio on ManiSkill's URDF)."""
+
+    def __init__(self):
+        import pinocchio as pin
+
+        self._pin = pin
+        self.model = pin.buildModelFromUrdf(str(PANDA_URDF))
+        self.data = self.model.createData()
+        self._tcp = self.model.getFrameId("panda_hand_tcp")
+
+    def tcp(self, q7: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """q7 (N, 7) -> positions (N, 3) and rotations (N, 3, 3) of the TCP."""
+        q7 = np.atleast_2d(np.asarray(q7, dtype=np.float64))
+        p, R = np.empty((len(q7), 3)), np.empty((len(q7), 3, 3))
+        for i, q in enumerate(q7):
+            self._pin.framesForwardKinematics(self.model, self.data, np.concatenate([q, [0.04, 0.04]]))
+            pose = self.data.oMf[self._tcp]
+            p[i], R[i] = pose.translation, pose.rotation
+        return p, R
 
 
 def hand_down_quat(finger_dir: np.ndarray) -> np.ndarray:

@@ -28,6 +28,36 @@ def insertion_demos(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
+def full_task_demos(tmp_path_factory):
+    """Three full-task demonstrations at 32x32, the first two for training, the third held out."""
+    from dataclasses import replace
+
+    from policy_composer.recording.recipes import load_recipe
+    from policy_composer.recording.record import EnvSettings, record_recipe
+
+    root = tmp_path_factory.mktemp("full") / "gear-full-task-demos"
+    recipe = replace(load_recipe("gear-full-task-demos"), train_episodes=2)
+    record_recipe(recipe, root, episodes=3, settings=EnvSettings(resolution=32), progress=False)
+    return root
+
+
+@pytest.fixture(scope="session")
+def controller_rollouts(tmp_path_factory):
+    """One rollout each of mp_pick and mp_insert at 32x32 (head and left forearm cameras): the dynamics models' data."""
+    from dataclasses import replace
+
+    from policies.library import LibrarySources
+    from policy_composer.recording.recipes import load_recipe
+    from policy_composer.recording.record import EnvSettings, record_recipe
+
+    recipe = replace(load_recipe("gear-controller-rollouts"), controllers=("mp_pick", "mp_insert"))
+    root = tmp_path_factory.mktemp("ro") / "rollouts"
+    record_recipe(recipe, root, episodes=1, settings=EnvSettings(resolution=32), progress=False,
+                  sources=LibrarySources(max_grasp_offset=0.0))
+    return root
+
+
+@pytest.fixture(scope="session")
 def act_checkpoint(insertion_demos, tmp_path_factory):
     """lerobot-train's ACT, two steps on the insertion demos: (the pretrained_model folder, the trainer's log)."""
     import subprocess

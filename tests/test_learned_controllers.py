@@ -8,14 +8,20 @@ import sys
 from pathlib import Path
 
 import gymnasium as gym
+import numpy as np
 import pytest
+import sapien
 import torch
+from transforms3d.quaternions import quat2mat
 
+from policies.arm import np0
 from policies.cnn.configuration_cnn import CNNPolicyConfig
-from policies.cnn.controller import CNNController
-from policies.cnn.train import CheckpointError, load_cnn_policy, load_demonstrations, train_cnn_policy
+from policies.cnn.controller import CNNController, hand_step
+from policies.cnn.train import (CheckpointError, action_target, load_cnn_policy, load_demonstrations,
+                                previous_commands, train_cnn_policy)
 from policies.lerobot_policy import LeRobotPolicyController
 from policy_composer.controller_table import start_state
+from tasks.gear_kinematics import LeftArmIK
 
 TINY = dict(image_size=32, hidden_dim=64, num_mixtures=4, batch_size=32, epochs=8)
 
@@ -25,6 +31,35 @@ def rgb_env():
     env = gym.make("GearAssembly-v1", obs_mode="rgb", camera_width=64, camera_height=64)
     yield env
     env.close()
+
+
+def test_hand_frame_targets_map_back_to_the_recorded_joint_targets(state_env):
+    """The "hand" action space loses nothing: a recorded (state, joint target) pair, turned into a displacement in
+    the hand's frame and back through IK from the measured joints, gives the recorded joint target."""
+    obs, _ = state_env.reset(seed=2)
+    ik = LeftArmIK(state_env)
+    state = obs["extra"]["state"][0].double()
+    quat = np0(ik.arm.tcp.pose.q)
+    move = np.array([0.004, -0.003, -0.005])  # world frame
+    target, ok = ik.solve(sapien.Pose(np0(ik.arm.tcp.pose.p) + move, quat), np0(ik.arm.robot.get_qpos()))
+    assert ok
+    action = state.clone()
+    action[:7] = torch.as_tensor(target[:7])
+    # The controller's first step: the previous command is the measured state.
+    in_hand = action_target(state[None].float(), action[None].float(), state[None].float(), "hand")[0, :3].numpy()
+    np.testing.assert_allclose(np.linalg.norm(in_hand), np.linalg.norm(move), atol=2e-4)
+    assert abs(in_hand[2] - np.dot(quat2mat(quat)[:, 2], move)) < 2e-4  # the hand's z axis points down
+    command, q = hand_step(ik, np0(ik.arm.tcp.pose.p), in_hand, quat)
+    np.testing.assert_allclose(command, np0(ik.arm.tcp.pose.p) + move, atol=2e-4)
+    np.testing.assert_allclose(q, target[:7], atol=2e-3)
+
+
+def test_targets_are_changes_of_the_command():
+    state = torch.tensor([[0.0] * 16, [1.0] * 16, [2.0] * 16])
+    action = torch.tensor([[0.5] * 16, [1.5] * 16, [9.0] * 16])
+    prev = previous_commands(state, action, torch.tensor([0, 0, 1]))
+    assert prev[:, 0].tolist() == [0.0, 0.5, 2.0]  # episode starts continue from the measured joints
+    assert action_target(state, action, prev, "joint")[:, 0].tolist() == [0.5, 1.0, 7.0]
 
 
 def test_cnn_loss_falls_and_checkpoint_reloads(insertion_demos, tmp_path):
@@ -42,6 +77,10 @@ def test_cnn_loss_falls_and_checkpoint_reloads(insertion_demos, tmp_path):
         load_cnn_policy(tmp_path / "cnn", state_dim=16)
     with pytest.raises(CheckpointError, match="no CNN policy checkpoint"):
         load_cnn_policy(tmp_path)
+    config_file = tmp_path / "cnn" / "config.json"
+    config_file.write_text(config_file.read_text().replace('"action_space"', '"action_dim": 8, "action_space"'))
+    with pytest.raises(CheckpointError, match="another configuration of the CNN policy"):
+        load_cnn_policy(tmp_path / "cnn")
 
 
 def test_cnn_controller_acts_from_pixels_within_limits(insertion_demos, rgb_env, tmp_path):

@@ -7,6 +7,7 @@ import json
 import os
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import gymnasium as gym
@@ -15,6 +16,7 @@ import pytest
 import torch
 
 import tasks  # noqa: F401
+from policies.library import LibraryError, LibrarySources
 from policy_composer.recording import journal
 from policy_composer.recording.catalog import HubUnreachable, push_dataset
 from policy_composer.recording.features import DatasetError, open_dataset
@@ -139,8 +141,33 @@ def test_bad_input_is_named(insertion_demos, tmp_path):
         load_recipe("gear-nothing")
     assert available_recipes() == ["gear-controller-rollouts", "gear-full-task-demos", "gear-insertion-demos"]
     assert load_recipe("gear-full-task-demos").splits(8) == {"train": [0, 1, 2, 3, 4], "heldout": [5, 6, 7]}
-    with pytest.raises(RecipeError, match="library has none"):
-        record_recipe(load_recipe("gear-controller-rollouts"), tmp_path / "ro", settings=EnvSettings(resolution=32))
+    rollouts = load_recipe("gear-controller-rollouts")
+    assert rollouts.cameras == ("head", "left_forearm")
+    with pytest.raises(LibraryError, match="no controller named 'mp_fly'"):
+        record_recipe(replace(rollouts, controllers=("mp_fly",)), tmp_path / "ro1", settings=EnvSettings(resolution=32))
+    with pytest.raises(FileNotFoundError, match="train dmp"):
+        record_recipe(rollouts, tmp_path / "ro2", settings=EnvSettings(resolution=32),
+                      sources=LibrarySources(dmp=str(tmp_path / "none")))
+    with pytest.raises(RecipeError, match="non-empty subset"):
+        replace(rollouts, cameras=("wrist",))
+
+
+def test_controller_rollouts_name_their_controller(controller_rollouts):
+    """The dynamics models' data: each controller from its own initiation set, every frame labelled with it."""
+    root = controller_rollouts
+    sidecar = json.loads((root / "meta" / "policy_composer.json").read_text())
+    assert [e["controller_name"] for e in sidecar["episodes"]] == ["mp_pick", "mp_insert"]
+    # The pick has no perception error, and the insertion's start (seed 1) holds the gear 0.3 mm off: both succeed.
+    assert [(e["seed"], e["outcome"], e["success"]) for e in sidecar["episodes"]] == [(0, "done", True), (1, "done", True)]
+    ds = open_dataset(root, required={"observation.images.head": (32, 32, 3), "observation.images.left_forearm": None})
+    assert "observation.images.right_forearm" not in ds.meta.features
+    names = sidecar["controllers"]
+    for ep, name in enumerate(("mp_pick", "mp_insert")):
+        frames = ds.hf_dataset.filter(lambda r, ep=ep: r["episode_index"] == ep)
+        assert {names[int(c)] for c in frames["controller"]} == {name}
+        assert len(frames) == sidecar["episodes"][ep]["length"]
+    stages = np.array(ds.hf_dataset["stage"]).ravel()
+    assert stages[0] == 0 and stages[-1] == 3  # the pick starts on the table; the insertion ends seated
 
 
 def test_journal_rolls_back_an_unfinished_save(insertion_demos, tmp_path):

@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import numpy as np
+import sapien
+from transforms3d.quaternions import quat2mat
 
 from policies.arm import np0
 from policies.cnn.modeling_cnn import CNNPolicy
-from policies.cnn.train import arm_state, to_model_image
+from policies.cnn.train import arm_state
+from policy_composer.recording.frames import to_model_image
 from policies.subtasks import SUBTASKS, LearnedController, Subtask
+from tasks.gear_kinematics import LeftArmIK
 
 
 def check_camera(env, camera: str, who: str) -> None:
@@ -19,14 +23,39 @@ def check_camera(env, camera: str, who: str) -> None:
 
 
 class CNNController(LearnedController):
+    """Each step: the policy's most probable action, added to the controller's running command (the policy
+    predicts changes of the command) and turned into the left arm's joint targets. A policy in the "hand"
+    action space moves the commanded TCP, with the hand kept pointing down, by IK from the measured joints."""
+
     def __init__(self, env, policy: CNNPolicy, subtask: Subtask = SUBTASKS["insert"], max_steps: int = 120):
         super().__init__(env, subtask, f"cnn_{subtask.name}", max_steps)
         check_camera(self.env, policy.config.camera, "the CNN policy")
         self.policy = policy
         self.obs_keys = (f"sensor_data.{policy.config.camera}.rgb", "extra.state[:8]")
+        self._ik = LeftArmIK(self.env)
+
+    def reset(self, obs, seed=None):
+        super().reset(obs, seed)
+        q9 = np0(self.env.left_arm.robot.get_qpos())
+        solution = self._ik.solve_hand_down(self.scene.tcp(), self.scene.finger_dir(), q9)
+        self._quat = solution[0] if solution is not None else np0(self.env.left_arm.tcp.pose.q)
+        self._command = self.scene.tcp() if self.policy.config.action_space == "hand" else self.left_qpos(obs)
 
     def predict(self, obs):
         camera, size = self.policy.config.camera, self.policy.config.image_size
         image = to_model_image(obs["sensor_data"][camera]["rgb"][:1].cpu(), size)
         a = self.policy.act(image, arm_state(obs["extra"]["state"][:1].cpu().float()))[0].numpy().astype(np.float64)
-        return np0(obs["extra"]["state"])[:7] + a[:7], float(np.clip(a[7], -1.0, 1.0))
+        gripper = float(np.clip(a[-1], -1.0, 1.0))
+        if self.policy.config.action_space == "joint":
+            self._command = self._command + a[:7]
+            return self._command.copy(), gripper
+        self._command, q = hand_step(self._ik, self._command, a[:3], self._quat)
+        return q, gripper
+
+
+def hand_step(ik: LeftArmIK, command: np.ndarray, displacement: np.ndarray, quat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Move the commanded TCP position (world) by `displacement` (m, in the hand's frame), orientation `quat`:
+    the new command and its joint targets (7), solved from the measured joints."""
+    command = command + quat2mat(np0(ik.arm.tcp.pose.q)) @ displacement
+    q9, _ = ik.solve(sapien.Pose(command, quat), np0(ik.arm.robot.get_qpos()))
+    return command, q9[:7]

@@ -6,6 +6,8 @@ import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
+from tasks.gear_assembly import CAMERA_NAMES
+
 RECIPE_DIR = Path(__file__).resolve().parents[2] / "datasets" / "recipes"
 DRIVERS = ("expert", "controllers")
 
@@ -18,6 +20,7 @@ class RecipeError(ValueError):
 class ExpertSettings:
     grasp_offset_mm: float = 12.0
     teleop: bool = False
+    arrival_error_mm: float = 4.0  # teleop: how much further off its rough carry may leave the gear
 
 
 @dataclass(frozen=True)
@@ -31,11 +34,15 @@ class Recipe:
     keep: str = "success"  # "success": failed episodes are dropped and another seed is tried; "all"
     train_episodes: int | None = None  # episodes [0, train_episodes) train, the rest are held out
     controllers: tuple[str, ...] = ()
+    cameras: tuple[str, ...] = CAMERA_NAMES  # cameras to render and record
     expert: ExpertSettings = field(default_factory=ExpertSettings)
 
     def __post_init__(self):
         if self.driver not in DRIVERS:
             raise RecipeError(f"recipe {self.name}: driver {self.driver!r} is not one of {DRIVERS}")
+        if set(self.cameras) - set(CAMERA_NAMES) or not self.cameras:
+            raise RecipeError(f"recipe {self.name}: cameras {list(self.cameras)} must be a non-empty subset of "
+                              f"{list(CAMERA_NAMES)}")
         if self.keep not in ("success", "all"):
             raise RecipeError(f"recipe {self.name}: keep must be 'success' or 'all', not {self.keep!r}")
 
@@ -64,6 +71,7 @@ def load_recipe(name_or_path: str | Path) -> Recipe:
     if unknown:
         raise RecipeError(f"recipe {path}: unknown keys {sorted(unknown)}; a recipe has {sorted(known)}")
     raw["expert"] = ExpertSettings(**raw.get("expert", {}))
-    for key in ("record_phases", "controllers"):
-        raw[key] = tuple(raw.get(key, ()))
+    for key in ("record_phases", "controllers", "cameras"):
+        if key in raw:
+            raw[key] = tuple(raw[key])
     return Recipe(**raw)

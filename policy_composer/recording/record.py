@@ -2,18 +2,24 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
+from policies.library import LibrarySources, build_library
 from policy_composer.recording import journal
 from policy_composer.recording.features import read_sidecar
 from policy_composer.recording.recipes import Recipe, RecipeError
+from tasks.gear_assembly import CAMERA_NAMES
 
 
 @dataclass(frozen=True)
 class EnvSettings:
     resolution: int = 128
     clearance_mm: float = 2.0
+    cameras: tuple[str, ...] = CAMERA_NAMES
+
+    def __post_init__(self):
+        object.__setattr__(self, "cameras", tuple(self.cameras))  # a list when read back from JSON
 
 
 def make_recording_env(settings: EnvSettings):
@@ -21,36 +27,28 @@ def make_recording_env(settings: EnvSettings):
 
     import tasks  # noqa: F401  (registers GearAssembly-v1)
 
-    return gym.make("GearAssembly-v1", obs_mode="rgb", camera_width=settings.resolution,
+    return gym.make("GearAssembly-v1", obs_mode="rgb", camera_width=settings.resolution, cameras=settings.cameras,
                     camera_height=settings.resolution, clearance=settings.clearance_mm / 1000.0)
 
 
-def _driver(recipe: Recipe, env):
-    if recipe.driver == "controllers":
-        raise RecipeError(f"recipe {recipe.name} records the controllers of the library ({', '.join(recipe.controllers)}), "
-                          f"and the library has none of them yet; record the expert recipes for now")
-    from tasks.gear_expert import ExpertConfig, GearAssemblyExpert
-
-    return GearAssemblyExpert(env, ExpertConfig(grasp_offset=recipe.expert.grasp_offset_mm / 1000.0,
-                                                teleop=recipe.expert.teleop))
-
-
 def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None, seed: int = 0, resume: bool = False,
-                  settings: EnvSettings | None = None, progress: bool = True) -> dict:
-    """Record until the dataset at `root` holds `episodes` episodes; returns its sidecar (seeds, success, ...).
+                  settings: EnvSettings | None = None, progress: bool = True,
+                  sources: LibrarySources | None = None) -> dict:
+    """Record until the dataset at `root` holds `episodes` episodes (per controller, for the "controllers"
+    driver); returns its sidecar (seeds, success, ...).
 
     With `resume`, an existing dataset is continued with its own env settings and the seed after the last
-    one it tried; an episode interrupted mid-way is simply recorded again.
+    one it tried; an episode interrupted mid-way is simply recorded again. `sources` says where the library's
+    trained models are (the "controllers" driver).
     """
     import torch
     from tqdm import tqdm
 
     from policy_composer.recording.recorder import LeRobotRecorder
-    from policy_composer.rollout import episode_limit
 
     torch.set_num_threads(1)  # the encoder threads need the second core
     root = Path(root)
-    target = episodes if episodes is not None else recipe.episodes
+    per_unit = episodes if episodes is not None else recipe.episodes
     if resume:
         journal.recover(root)  # before reading the sidecar: an interrupted save may have written it already
     previous = read_sidecar(root) if resume else {}
@@ -60,40 +58,86 @@ def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None,
         settings = EnvSettings(**previous["env"])
         seed = previous["next_seed"]
     settings = settings or EnvSettings()
+    if not previous:
+        settings = replace(settings, cameras=recipe.cameras)
     env = make_recording_env(settings)
     recorder = LeRobotRecorder(env, root, task=recipe.task, resume=resume,
                                metadata={"recipe": recipe.name, "env": asdict(settings),
                                          "expert": asdict(recipe.expert), "train_episodes": recipe.train_episodes})
-    driver = _driver(recipe, recorder)
-    limit = episode_limit(env)
+    units = recipe.controllers if recipe.driver == "controllers" else ("expert",)
+    target = per_unit * len(units)
     bar = tqdm(total=target, initial=min(recorder.num_episodes, target), desc=recipe.name, unit="episode",
                disable=not progress)
-    attempts = 0
     try:
-        while recorder.num_episodes < target:
-            attempts += 1
-            if attempts > 3 * target + 5:
-                raise RuntimeError(f"{recipe.name}: too few episodes succeed ({recorder.num_episodes} kept after "
-                                   f"{attempts - 1} attempts); check the env settings {settings}")
-            obs, _ = recorder.reset(seed=seed)
-            driver.reset(seed)
-            recorder.controller = driver.name
-            info = None
-            for _ in range(limit):
-                if driver.done:
-                    break
-                recorder.recording = not recipe.record_phases or driver.phase in recipe.record_phases
-                obs, _, _, _, info = recorder.step(driver.act(obs))
-            success = info is not None and bool(info["success"][0])
-            seed += 1
-            if recorder.buffered_frames == 0 or (recipe.keep == "success" and not success):
-                recorder.discard_episode()
-                continue
-            recorder.sidecar["next_seed"] = seed
-            recorder.save_episode(success, seed=seed - 1, grasp_offset_mm=round(driver.grasp_offset * 1000, 3))
-            bar.update()
-            bar.set_postfix(seed=seed - 1, frames=recorder.episodes[-1]["length"])
+        if recipe.driver == "controllers":
+            library = build_library(recorder, recipe.controllers, sources)
+            for name in recipe.controllers:
+                seed = _record_controller(recorder, library[name], per_unit, seed, bar)
+        else:
+            _record_expert(recipe, recorder, per_unit, seed, bar)
     finally:
         bar.close()
         env.close()
     return recorder.sidecar
+
+
+def _save(recorder, bar, success: bool, seed: int, **info) -> None:
+    recorder.sidecar["next_seed"] = seed + 1
+    recorder.save_episode(success, seed=seed, **info)
+    bar.update()
+    bar.set_postfix(seed=seed, frames=recorder.episodes[-1]["length"])
+
+
+def _record_expert(recipe: Recipe, recorder, target: int, seed: int, bar) -> None:
+    """The scripted expert from each seed's reset, recording the recipe's phases."""
+    from tasks.gear_expert import ExpertConfig, GearAssemblyExpert
+
+    from policy_composer.rollout import episode_limit
+
+    expert = GearAssemblyExpert(recorder, ExpertConfig(grasp_offset=recipe.expert.grasp_offset_mm / 1000.0,
+                                                       teleop=recipe.expert.teleop,
+                                                       arrival_error=recipe.expert.arrival_error_mm / 1000.0))
+    limit, attempts = episode_limit(recorder), 0
+    while recorder.num_episodes < target:
+        attempts += 1
+        if attempts > 3 * target + 5:
+            raise RuntimeError(f"{recipe.name}: too few episodes succeed ({recorder.num_episodes} kept after "
+                               f"{attempts - 1} attempts); check the env settings")
+        obs, _ = recorder.reset(seed=seed)
+        expert.reset(seed)
+        recorder.controller = expert.name
+        info = None
+        for _ in range(limit):
+            if expert.done:
+                break
+            recorder.recording = not recipe.record_phases or expert.phase in recipe.record_phases
+            obs, _, _, _, info = recorder.step(expert.act(obs))
+        success = info is not None and bool(info["success"][0])
+        if recorder.buffered_frames == 0 or (recipe.keep == "success" and not success):
+            recorder.discard_episode()
+        else:
+            _save(recorder, bar, success, seed, grasp_offset_mm=round(expert.grasp_offset * 1000, 3))
+        seed += 1
+
+
+def _record_controller(recorder, controller, target: int, seed: int, bar) -> int:
+    """`target` activations of one controller, each from a start state inside its initiation set (the open-loop
+    expert run, unrecorded, up to where the controller's subtask begins); failures are kept. Returns the next seed."""
+    from policies.arm import run_activation
+    from policy_composer.controller_table import start_state
+
+    done = sum(e.get("controller_name") == controller.name for e in recorder.episodes)
+    while done < target:
+        recorder.recording = False
+        obs = start_state(recorder, seed, controller.subtask.name)
+        recorder.recording = True
+        recorder.controller = controller.name
+        run_activation(recorder, controller, obs, seed)
+        if recorder.buffered_frames == 0:
+            recorder.discard_episode()
+        else:
+            _save(recorder, bar, controller.outcome.value == "done", seed, controller_name=controller.name,
+                  outcome=controller.outcome.value)
+            done += 1
+        seed += 1
+    return seed

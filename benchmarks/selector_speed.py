@@ -1,0 +1,101 @@
+"""Selector decision latency for the whole library, and training speed of each learned model, at the default sizes.
+
+Run: python benchmarks/selector_speed.py [--decisions 20] [--frames 512]
+Latency: one decision over the 7 controllers of the library (all applicable: the worst case) at n = 10 and
+K = 16, against the reference of encoding one camera image with the VAE in the same process. Training: seconds
+per epoch over `--frames` random frames for each model at its default configuration, and the time of a full
+default training run at the datasets' sizes (frames given on the command line). Models are randomly
+initialised: speed does not depend on the weights.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import torch
+
+from policies.cnn.configuration_cnn import CNNPolicyConfig
+from policies.cnn.modeling_cnn import CNNPolicy
+from policies.library import ALL_NAMES
+from selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
+from selector.dynamics import LatentDynamics
+from selector.goal_score import GoalScoreModel
+from selector.vae import VAE
+from selector.world_model import GearWorldModel
+
+
+def timed(fn, repeat: int) -> float:
+    fn()  # warm-up
+    t0 = time.perf_counter()
+    for _ in range(repeat):
+        fn()
+    return (time.perf_counter() - t0) / repeat
+
+
+def epoch_seconds(step, frames: int, batch: int) -> float:
+    """Seconds of one epoch of `step(batch)` (forward, backward, update) over `frames` frames."""
+    n = max(1, frames // batch)
+    return timed(lambda: [step(batch) for _ in range(n)], 1)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--decisions", type=int, default=20)
+    parser.add_argument("--frames", type=int, default=512, help="frames per timed epoch")
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--rollout-frames", type=int, default=12000, help="controller-rollout frames (VAE, dynamics)")
+    parser.add_argument("--demo-frames", type=int, default=700, help="training full-task demo frames (goal score)")
+    parser.add_argument("--insertion-frames", type=int, default=2270, help="insertion demo frames (CNN policy)")
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    torch.manual_seed(0)
+
+    vae_config, dyn_config, goal_config = VAEConfig(), DynamicsConfig(), GoalScoreConfig()
+    vae = VAE(vae_config).eval()
+    dynamics = {n: LatentDynamics(DynamicsConfig(controller=n)).eval() for n in ALL_NAMES}
+    world = GearWorldModel(vae, dynamics, GoalScoreModel(goal_config).eval())
+    selector = world.selector(horizon=10, samples=16, seed=0)
+    obs = {"sensor_data": {"head": {"rgb": torch.randint(0, 255, (1, 128, 128, 3), dtype=torch.uint8)}}}
+    encode = timed(lambda: world.encode(obs), args.decisions)
+    decide = timed(lambda: selector.decide(world.encode(obs)), args.decisions)
+    print(f"reference: encode one 128x128 image with the VAE: {encode * 1000:.1f} ms")
+    print(f"selector decision, {len(ALL_NAMES)} controllers, n = 10, K = 16: {decide * 1000:.0f} ms "
+          f"({decide / encode:.0f}x the reference)")
+
+    size = vae_config.image_size
+    images = torch.rand(max(vae_config.batch_size, goal_config.batch_size, 120), 3, size, size)
+
+    def fit(model, loss_fn):
+        opt = torch.optim.Adam(model.parameters(), lr=1e-3)
+
+        def step(b):
+            loss = loss_fn(b)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+        return step
+
+    cnn = CNNPolicy(CNNPolicyConfig())
+    dyn = LatentDynamics(dyn_config)
+    goal = GoalScoreModel(goal_config)
+    z = torch.randn(dyn_config.batch_size, vae_config.latent_dim)
+    runs = {
+        "VAE": (fit(vae.train(), lambda b: vae.loss(images[:b])[0]), vae_config.batch_size, vae_config.epochs,
+                args.rollout_frames),
+        "dynamics model (one controller)": (fit(dyn, lambda b: dyn.loss(z[:b], z[:b] + 0.1, vae, images[:b])),
+                                            dyn_config.batch_size, dyn_config.epochs, args.rollout_frames // len(ALL_NAMES)),
+        "goal score (one camera)": (fit(goal, lambda b: goal.loss(images[:b], torch.rand(b))), goal_config.batch_size,
+                                    goal_config.epochs, 2 * args.demo_frames),
+        "CNN policy": (fit(cnn, lambda b: cnn.loss(images[:b], torch.randn(b, 8), torch.randn(b, cnn.config.action_dim))),
+                       CNNPolicyConfig().batch_size, CNNPolicyConfig().epochs, args.insertion_frames),
+    }
+    for name, (step, batch, epochs, frames) in runs.items():
+        per_epoch = epoch_seconds(step, args.frames, batch)
+        full = per_epoch * frames / args.frames * epochs
+        print(f"training {name}: {per_epoch / args.frames * 1000:.2f} ms/frame-epoch; default run "
+              f"({epochs} epochs x {frames} frames): {full / 60:.1f} min")
+
+
+if __name__ == "__main__":
+    main()

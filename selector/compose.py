@@ -1,0 +1,95 @@
+"""Composition inside ManiSkill rollouts: the selector runs the library on GearAssembly-v1 with no fixed sequence.
+
+At each decision it scores every controller whose initiation set holds the current state, runs the best one,
+and decides again when it terminates (succeeded, failed, or stopped for safety) and, optionally, every
+`reselect_every` control steps. The episode ends when no controller may start (the task is done, or nothing
+applies) or at `max_steps`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Callable
+
+import torch
+
+from policies.base import Controller
+from selector.world_model import GearWorldModel
+
+
+@dataclass
+class ComposeConfig:
+    horizon: int = 10  # n: dynamics steps looked ahead (paper: 10)
+    samples: int = 16  # K: sampled rollouts per controller
+    reselect_every: int | None = None  # also decide again every this many control steps; None: only at termination
+    max_steps: int = 900  # control steps per episode
+
+
+@dataclass
+class Activation:
+    controller: str
+    start_step: int
+    steps: int = 0
+    outcome: str = "running"
+    reason: str = ""
+
+
+@dataclass
+class ComposedEpisode:
+    seed: int
+    success: bool = False
+    steps: int = 0
+    knocked_out: bool = False
+    activations: list[Activation] = field(default_factory=list)
+    decisions: list[dict] = field(default_factory=list)  # step, choice and every candidate's score
+
+    @property
+    def sequence(self) -> list[str]:
+        return [a.controller for a in self.activations]
+
+    def to_dict(self) -> dict:
+        return {**asdict(self), "sequence": self.sequence}
+
+
+FrameHook = Callable[[dict, str, float], None]  # (observation, running controller, goal score now)
+
+
+def compose_episode(env, library: dict[str, Controller], world: GearWorldModel, config: ComposeConfig, seed: int,
+                    on_frame: FrameHook | None = None) -> ComposedEpisode:
+    """One composed episode from `env.reset(seed)`. Only controllers with a dynamics model are candidates."""
+    names = [n for n in world.dynamics if n in library]
+    if not names:
+        raise ValueError(f"none of the library's controllers ({list(library)}) has a dynamics model "
+                         f"(the world model has {list(world.dynamics)})")
+    selector = world.selector(config.horizon, config.samples, seed=seed, controllers=names)
+    u = env.unwrapped
+    obs, _ = env.reset(seed=seed)
+    result = ComposedEpisode(seed)
+    running: Controller | None = None
+    current: Activation | None = None
+    for step in range(config.max_steps):
+        due = running is not None and config.reselect_every and current.steps >= config.reselect_every
+        if running is None or running.done(obs) or due:
+            if current is not None:
+                current.outcome = running.outcome.value if running.done(obs) else "preempted"
+                current.reason = getattr(running, "reason", "")
+            applicable = torch.tensor([[library[n].can_start(obs) for n in names]])
+            if not applicable.any():
+                break
+            decision = selector.decide(world.encode(obs), applicable)
+            result.decisions.append({"step": step, **decision.log(0)})
+            running = library[decision.chosen(0)]
+            running.start(obs, seed=seed * 1000 + step)
+            current = Activation(running.name, step)
+            result.activations.append(current)
+        obs, *_ = env.step(u.flat_to_dict_action(running.act(obs)))
+        current.steps += 1
+        result.steps = step + 1
+        if on_frame is not None:
+            on_frame(obs, running.name, world.score_observation(obs))
+    if current is not None and current.outcome == "running":
+        current.outcome = running.outcome.value if running.done(obs) else "cut off at max_steps"
+        current.reason = getattr(running, "reason", "")
+    result.success = bool(u.evaluate()["success"][0])
+    result.knocked_out = bool(getattr(u, "knocked_out", False))
+    return result

@@ -1,0 +1,124 @@
+"""Controller dynamics models (paper: Controller Dynamics Modelling): one mixture density network per
+controller, predicting the latent state `frame_skip` control steps ahead while that controller runs.
+
+Each model trains only on its own controller's rollouts. It shares the VAE's decoder: besides the likelihood
+of the next latent, its expected prediction must decode to the real next image, which keeps the predicted
+latents where the decoder (and so the goal score) understands them.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from policies.cnn.modeling_cnn import MixtureDensityHead
+from policy_composer.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from policy_composer.recording.frames import episode_bounds
+from selector.configuration import DynamicsConfig
+from selector.vae import VAE
+
+TRAIN_HINT = "policy-composer train world-model"
+
+
+class LatentDynamics(nn.Module):
+    """z_t -> a mixture over z_{t+k} - z_t. Normalisation statistics live in buffers."""
+
+    def __init__(self, config: DynamicsConfig):
+        super().__init__()
+        self.config = config
+        L, H = config.latent_dim, config.hidden_dim
+        self.trunk = nn.Sequential(nn.Linear(L, H), nn.ReLU(), nn.Linear(H, H), nn.ReLU())
+        self.head = MixtureDensityHead(H, L, config.num_mixtures)
+        for name in ("z", "delta"):
+            self.register_buffer(f"{name}_mean", torch.zeros(L))
+            self.register_buffer(f"{name}_std", torch.ones(L))
+
+    def forward(self, z: torch.Tensor):
+        return self.head(self.trunk((z - self.z_mean) / self.z_std))
+
+    def expected(self, z: torch.Tensor, params=None) -> torch.Tensor:
+        """The mixture's mean next latent (differentiable: the decoder loss trains through it)."""
+        log_pi, mu, _ = params if params is not None else self(z)
+        delta = (log_pi.exp()[..., None] * mu).sum(1)
+        return z + delta * self.delta_std + self.delta_mean
+
+    def loss(self, z: torch.Tensor, z_next: torch.Tensor, vae: VAE | None = None,
+             next_images: torch.Tensor | None = None) -> torch.Tensor:
+        params = self(z)
+        nll = self.head.nll(*params, (z_next - z - self.delta_mean) / self.delta_std)
+        if vae is None or self.config.decoder_weight == 0:
+            return nll
+        decoded = vae.decode(self.expected(z, params))
+        recon = F.mse_loss(decoded, next_images, reduction="none").flatten(1).sum(1).mean()
+        return nll + self.config.decoder_weight * recon
+
+    @torch.no_grad()
+    def step(self, states: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+        """One sampled dynamics step, (M, L) -> (M, L): the selector's D_w."""
+        delta = self.head.sample(*self(states), generator=generator)
+        return states + delta * self.delta_std + self.delta_mean
+
+
+def transition_pairs(episode_index: torch.Tensor, frame_skip: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Row indices (t, t+k) within each episode; past an episode's end the controller has stopped, so the
+    target is its last frame (the model learns that a finished controller changes nothing)."""
+    src, dst = [], []
+    for start, end in episode_bounds(episode_index):
+        t = torch.arange(start, end)
+        src.append(t)
+        dst.append((t + frame_skip).clamp(max=end - 1))
+    return torch.cat(src), torch.cat(dst)
+
+
+def train_dynamics(latents: torch.Tensor, images: torch.Tensor, episode_index: torch.Tensor, config: DynamicsConfig,
+                   vae: VAE, out: str | Path | None = None, progress: bool = True) -> tuple[LatentDynamics, list[float]]:
+    """Fit D_w on one controller's frames: latents (N, L) from the VAE, their uint8 images and episodes."""
+    from tqdm import tqdm
+
+    t0 = time.perf_counter()
+    if len(latents) < 2:
+        raise ValueError(f"controller {config.controller!r} has {len(latents)} recorded frames; record its rollouts "
+                         f"first (policy-composer record gear-controller-rollouts)")
+    torch.manual_seed(config.seed)
+    src, dst = transition_pairs(episode_index, config.frame_skip)
+    model = LatentDynamics(config)
+    delta = latents[dst] - latents[src]
+    model.z_mean.copy_(latents.mean(0))
+    model.z_std.copy_(latents.std(0).clamp_min(1e-3))
+    model.delta_mean.copy_(delta.mean(0))
+    model.delta_std.copy_(delta.std(0).clamp_min(1e-3))
+    for p in vae.parameters():  # shared, not trained here
+        p.requires_grad_(False)
+    opt = torch.optim.Adam(model.parameters(), lr=config.lr)
+    gen = torch.Generator().manual_seed(config.seed)
+    losses = []
+    bar = tqdm(range(config.epochs), desc=f"training dynamics ({config.controller})", unit="epoch", disable=not progress)
+    for _ in bar:
+        model.train()
+        total = 0.0
+        for idx in torch.randperm(len(src), generator=gen).split(config.batch_size):
+            s, d = src[idx], dst[idx]
+            loss = model.loss(latents[s], latents[d], vae, images[d].float() / 255.0)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            total += loss.item() * len(idx)
+        losses.append(total / len(src))
+        bar.set_postfix(loss=f"{losses[-1]:.2f}")
+    model.eval()
+    if out is not None:
+        log = {"pairs": len(src), "losses": losses, "seconds": round(time.perf_counter() - t0, 1)}
+        save_checkpoint(model, config, out, log)
+    return model, losses
+
+
+def load_dynamics(path: str | Path, latent_dim: int | None = None) -> LatentDynamics:
+    model = load_checkpoint(path, DynamicsConfig, LatentDynamics, "dynamics model", TRAIN_HINT)
+    if latent_dim is not None and model.config.latent_dim != latent_dim:
+        raise CheckpointError(f"dynamics model {path} predicts {model.config.latent_dim}-D latents, but the VAE's are "
+                              f"{latent_dim}-D; train the world model again as one (`{TRAIN_HINT}`)")
+    return model

@@ -1,0 +1,96 @@
+"""The latent state: a convolutional VAE of one camera's images (paper: the world model's encoder and decoder).
+
+The dynamics models predict in its latent space and share its decoder, so any predicted latent decodes to an
+image: a user can look at what the model expects a controller to do.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from policy_composer.checkpoint import load_checkpoint, save_checkpoint
+from selector.configuration import VAEConfig
+
+TRAIN_HINT = "policy-composer train world-model"
+
+
+class VAE(nn.Module):
+    def __init__(self, config: VAEConfig):
+        super().__init__()
+        if config.image_size % 16:
+            raise ValueError(f"the VAE's image_size must be a multiple of 16, not {config.image_size}")
+        self.config = config
+        s = config.image_size // 16
+        self.encoder = nn.Sequential(
+            nn.Conv2d(3, 32, 4, 2, 1), nn.ReLU(), nn.Conv2d(32, 64, 4, 2, 1), nn.ReLU(),
+            nn.Conv2d(64, 128, 4, 2, 1), nn.ReLU(), nn.Conv2d(128, 256, 4, 2, 1), nn.ReLU(), nn.Flatten(),
+        )
+        self.to_stats = nn.Linear(256 * s * s, 2 * config.latent_dim)
+        self.from_latent = nn.Linear(config.latent_dim, 256 * s * s)
+        self.decoder = nn.Sequential(
+            nn.Unflatten(1, (256, s, s)), nn.ConvTranspose2d(256, 128, 4, 2, 1), nn.ReLU(),
+            nn.ConvTranspose2d(128, 64, 4, 2, 1), nn.ReLU(), nn.ConvTranspose2d(64, 32, 4, 2, 1), nn.ReLU(),
+            nn.ConvTranspose2d(32, 3, 4, 2, 1), nn.Sigmoid(),
+        )
+
+    def encode(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(B, 3, S, S) in [0, 1] -> mean and log-variance of q(z | image), (B, L) each."""
+        mu, logvar = self.to_stats(self.encoder(images)).chunk(2, dim=-1)
+        return mu, logvar.clamp(-10, 10)
+
+    def decode(self, z: torch.Tensor) -> torch.Tensor:
+        return self.decoder(self.from_latent(z))
+
+    def loss(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Negative ELBO per image: summed squared reconstruction error + beta * KL; also returns the error."""
+        mu, logvar = self.encode(images)
+        z = mu + torch.randn_like(mu) * (0.5 * logvar).exp()
+        recon = F.mse_loss(self.decode(z), images, reduction="none").flatten(1).sum(1)
+        kl = -0.5 * (1 + logvar - mu ** 2 - logvar.exp()).sum(1)
+        return (recon + self.config.beta * kl).mean(), recon.mean()
+
+    @torch.no_grad()
+    def latents(self, images_uint8: torch.Tensor, batch: int = 256) -> torch.Tensor:
+        """Posterior means of uint8 images (N, 3, S, S): the deterministic latent state the selector uses."""
+        return torch.cat([self.encode(images_uint8[i:i + batch].float() / 255.0)[0]
+                          for i in range(0, len(images_uint8), batch)]) if len(images_uint8) else \
+            torch.zeros(0, self.config.latent_dim)
+
+
+def train_vae(images: torch.Tensor, config: VAEConfig, out: str | Path | None = None,
+              progress: bool = True) -> tuple[VAE, list[float]]:
+    """Fit the VAE to uint8 images (N, 3, S, S); returns it and the per-epoch mean loss."""
+    from tqdm import tqdm
+
+    t0 = time.perf_counter()
+    torch.manual_seed(config.seed)
+    model = VAE(config)
+    opt = torch.optim.Adam(model.parameters(), lr=config.lr)
+    gen = torch.Generator().manual_seed(config.seed)
+    losses = []
+    bar = tqdm(range(config.epochs), desc=f"training VAE ({config.camera})", unit="epoch", disable=not progress)
+    for _ in bar:
+        model.train()
+        total = 0.0
+        for idx in torch.randperm(len(images), generator=gen).split(config.batch_size):
+            loss, recon = model.loss(images[idx].float() / 255.0)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            total += loss.item() * len(idx)
+        losses.append(total / len(images))
+        bar.set_postfix(loss=f"{losses[-1]:.1f}")
+    model.eval()
+    if out is not None:
+        log = {"frames": len(images), "losses": losses, "seconds": round(time.perf_counter() - t0, 1)}
+        save_checkpoint(model, config, out, log)
+    return model, losses
+
+
+def load_vae(path: str | Path) -> VAE:
+    return load_checkpoint(path, VAEConfig, VAE, "VAE", TRAIN_HINT)

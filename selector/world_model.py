@@ -1,0 +1,77 @@
+"""The selector's learned world of the gear task: the VAE's latent state, one dynamics model per controller,
+and the goal score of decoded latents. Trained from recorded datasets, saved as one folder:
+
+    ROOT/vae/                  the VAE (config.json + model.safetensors)
+    ROOT/dynamics/<controller> one latent dynamics model per controller
+    ROOT/goal_score/<camera>   one goal scorer per camera; the VAE's camera's scores the selector's predictions
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+from policy_composer.checkpoint import CheckpointError
+from policy_composer.recording.frames import to_model_image
+from selector.core import Selector
+from selector.dynamics import LatentDynamics, load_dynamics
+from selector.goal_score import GoalScoreModel, load_goal_score
+from selector.vae import VAE, load_vae
+
+
+class GearWorldModel:
+    """Implements the selector's GoalScore on latents, and turns observations into latents."""
+
+    def __init__(self, vae: VAE, dynamics: dict[str, LatentDynamics], goal: GoalScoreModel):
+        camera = vae.config.camera
+        if goal.config.camera != camera:
+            raise CheckpointError(f"the selector's goal score must read the VAE's camera ({camera!r}) to score decoded "
+                                  f"predictions; got a goal score for {goal.config.camera!r}")
+        skips = {m.config.frame_skip for m in dynamics.values()}
+        if len(skips) > 1:
+            raise CheckpointError(f"the dynamics models step different numbers of control steps ({sorted(skips)}); "
+                                  f"the selector compares them over one horizon, so train them with one frame_skip")
+        self.vae, self.dynamics, self.goal = vae, dynamics, goal
+        self.camera = camera
+        self.frame_skip = skips.pop() if skips else 1
+
+    @classmethod
+    def load(cls, root: str | Path, controllers: list[str] | None = None) -> "GearWorldModel":
+        """Load the VAE, the goal score of its camera and the dynamics models of `controllers` (default: all)."""
+        root = Path(root)
+        vae = load_vae(root / "vae")
+        folder = root / "dynamics"
+        available = sorted(p.name for p in folder.iterdir() if p.is_dir()) if folder.is_dir() else []
+        names = controllers if controllers is not None else available
+        missing = [n for n in names if n not in available]
+        if missing or not names:
+            raise CheckpointError(f"{root} has no dynamics model for {missing or 'any controller'} (it has {available}); "
+                                  f"record their rollouts and train them with `policy-composer train world-model`")
+        dynamics = {n: load_dynamics(folder / n, vae.config.latent_dim) for n in names}
+        return cls(vae, dynamics, load_goal_score(root / "goal_score" / vae.config.camera))
+
+    @torch.no_grad()
+    def encode(self, obs) -> torch.Tensor:
+        """The latent state of env 0's observation, (1, L)."""
+        if self.camera not in obs.get("sensor_data", {}):
+            raise ValueError(f"the world model reads camera {self.camera!r}; make the env with it (and obs_mode='rgb')")
+        image = to_model_image(obs["sensor_data"][self.camera]["rgb"][:1].cpu(), self.vae.config.image_size)
+        return self.vae.encode(image)[0]
+
+    @torch.no_grad()
+    def score(self, states: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+        """G of latent states: the goal score of their decoded images, (M, L) -> (M,)."""
+        return self.goal.expected(self.vae.decode(states))
+
+    @torch.no_grad()
+    def score_observation(self, obs) -> float:
+        """G of what the camera sees now (no decoding): for curves and videos."""
+        image = obs["sensor_data"][self.camera]["rgb"][:1].cpu()
+        return float(self.goal.expected(to_model_image(image, self.goal.config.image_size))[0])
+
+    def selector(self, horizon: int = 10, samples: int = 16, seed: int | None = None, controllers=None,
+                 keep_predictions: bool = False) -> Selector:
+        """A selector over `controllers` (default: every one with a dynamics model)."""
+        dynamics = {n: self.dynamics[n] for n in (controllers or self.dynamics)}
+        return Selector(dynamics, self, horizon=horizon, samples=samples, seed=seed, keep_predictions=keep_predictions)

@@ -1,0 +1,117 @@
+"""The gear task's selector: the VAE, the per-controller dynamics models and the goal score train on recorded
+datasets; mismatched checkpoints are refused; a composed episode runs end to end; the knock-out perturbation."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import gymnasium as gym
+import pytest
+import torch
+
+from policies.library import LibrarySources, build_library
+from policy_composer.checkpoint import CheckpointError
+from policy_composer.recording.features import image_key
+from policy_composer.recording.frames import load_frames
+from selector.compose import ComposeConfig, compose_episode
+from selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
+from selector.dynamics import load_dynamics, transition_pairs
+from selector.evaluate import evaluate_goal_scores
+from selector.goal_score import goal_score_metrics
+from selector.train import train_goal_scores, train_world_model
+from selector.world_model import GearWorldModel
+
+SIZE = 32
+
+
+@pytest.fixture(scope="module")
+def world(controller_rollouts, full_task_demos, tmp_path_factory):
+    """Small models trained from the test datasets into a world-model folder, as `train world-model` and
+    `train goal-score` do: (root, training times)."""
+    root = tmp_path_factory.mktemp("world")
+    timings = train_world_model(
+        controller_rollouts, full_task_demos, root, VAEConfig(image_size=SIZE, latent_dim=8, epochs=8, batch_size=32),
+        DynamicsConfig(hidden_dim=64, num_mixtures=2, epochs=15, batch_size=32), progress=False)
+    goal = GoalScoreConfig(image_size=SIZE, hidden_dim=64, num_mixtures=4, epochs=40, batch_size=16, shift=2)
+    timings.update(train_goal_scores(full_task_demos, root, ("head", "left_forearm"), goal, progress=False))
+    return root, timings
+
+
+def test_transition_pairs_stay_within_episodes():
+    src, dst = transition_pairs(torch.tensor([0, 0, 0, 0, 1, 1, 1]), frame_skip=2)
+    assert src.tolist() == [0, 1, 2, 3, 4, 5, 6]
+    assert dst.tolist() == [2, 3, 3, 3, 6, 6, 6]  # past the end: the controller's last frame
+
+
+def test_models_learn_and_the_goal_score_rises_along_its_demos(world, full_task_demos, tmp_path):
+    root, timings = world
+    assert set(timings) == {"vae", "dynamics mp_pick", "dynamics mp_insert", "goal score head", "goal score left_forearm"}
+    for model in ("vae", "dynamics/mp_pick", "dynamics/mp_insert", "goal_score/head"):
+        losses = json.loads((root / model / "train_log.json").read_text())["losses"]
+        assert losses[-1] < losses[0], (model, losses)
+    world_model = GearWorldModel.load(root)
+    assert set(world_model.dynamics) == {"mp_pick", "mp_insert"}
+    demos = load_frames(full_task_demos, ("head",), SIZE, episodes=[0, 1], progress=False)
+    metrics = goal_score_metrics(world_model.goal.scores(demos[image_key("head")]), demos["progress"],
+                                 demos["episode_index"])
+    assert metrics["spearman"] > 0.8, metrics
+    held_out = evaluate_goal_scores(root, full_task_demos, tmp_path, ("head", "left_forearm"), progress=False)
+    assert set(held_out) == {"head", "left_forearm"} and held_out["head"]["episodes"] == 1
+    assert (tmp_path / "goal_score.png").stat().st_size > 10_000
+    assert "| head |" in (tmp_path / "goal_score.md").read_text()
+
+
+def test_mismatched_checkpoints_are_refused(world, tmp_path):
+    root, _ = world
+    with pytest.raises(CheckpointError, match="predicts 8-D latents, but the VAE's are 16-D"):
+        load_dynamics(root / "dynamics" / "mp_pick", latent_dim=16)
+    with pytest.raises(CheckpointError, match="no dynamics model for \\['dmp_move'\\]"):
+        GearWorldModel.load(root, controllers=["mp_pick", "dmp_move"])
+    model = GearWorldModel.load(root)
+    other = replace(model.goal.config, camera="left_forearm")
+    model.goal.config = other
+    with pytest.raises(CheckpointError, match="must read the VAE's camera"):
+        GearWorldModel(model.vae, model.dynamics, model.goal)
+    with pytest.raises(CheckpointError, match="holds a VAEConfig checkpoint, not a dynamics model"):
+        load_dynamics(root / "vae")
+
+
+def test_a_composed_episode_runs_end_to_end(world):
+    root, _ = world
+    model = GearWorldModel.load(root)
+    env = gym.make("GearAssembly-v1", obs_mode="rgb", cameras=("head",), camera_width=SIZE, camera_height=SIZE)
+    library = build_library(env, ["mp_pick", "mp_insert"], LibrarySources(max_grasp_offset=0.0))
+    frames = []
+    result = compose_episode(env, library, model, ComposeConfig(horizon=3, samples=4, max_steps=150), seed=0,
+                             on_frame=lambda obs, name, score: frames.append((name, score)))
+    env.close()
+    first = result.decisions[0]
+    # At the reset only the pick may start: the insertion is outside its initiation set and gets no score.
+    assert first["step"] == 0 and first["choice"] == "mp_pick"
+    assert first["scores"]["mp_insert"] is None and first["scores"]["mp_pick"] is not None
+    assert result.activations[0].controller == "mp_pick" and result.activations[0].outcome == "done"
+    assert len(frames) == result.steps and all(0.0 <= s <= 1.0 for _, s in frames)
+    # After the pick (gear lifted, not at the peg) neither controller may start: the episode stops there.
+    assert result.sequence == ["mp_pick"] and not result.success
+
+
+def test_knock_out_puts_the_gear_back_on_the_table(state_env):
+    from policies.arm import SceneGeometry
+    from policies.subtasks import SUBTASKS
+    from tasks.gear_expert import GearAssemblyExpert
+
+    env = gym.make("GearAssembly-v1", obs_mode="state_dict", knock_out_step=5)
+    u = env.unwrapped
+    obs, _ = env.reset(seed=1)
+    expert = GearAssemblyExpert(env)
+    expert.reset(1)
+    for _ in range(200):
+        obs, *_ = env.step(u.flat_to_dict_action(expert.act(obs)))
+        if u.knocked_out:
+            break
+    assert u.knocked_out and expert.phase in ("lift", "carry")  # knocked out as soon as it was lifted
+    for _ in range(10):  # let it settle
+        obs, *_ = env.step(u.flat_to_dict_action(u.hold_action()[0]))
+    assert SUBTASKS["pick"].can_start(SceneGeometry(env))  # the pick-up may start again
+    env.close()
