@@ -78,12 +78,20 @@ def cmd_evaluate_expert(args: argparse.Namespace) -> int:
 
 def cmd_record(args: argparse.Namespace) -> int:
     """Record a recipe's dataset (see datasets/recipes/) into a LeRobotDataset."""
-    from policy_composer.recording.catalog import format_summary, summarize
-    from policy_composer.recording.recipes import load_recipe
+    from dataclasses import replace
+
     from policies.library import LibrarySources
+    from policy_composer.recording.catalog import format_summary, summarize
+    from policy_composer.recording.recipes import RecipeError, load_recipe
     from policy_composer.recording.record import EnvSettings, record_recipe
 
     recipe = load_recipe(args.recipe)
+    if args.controllers:
+        chosen = tuple(args.controllers.split(","))
+        if recipe.driver != "controllers" or set(chosen) - set(recipe.controllers):
+            raise RecipeError(f"--controllers must name controllers of recipe {recipe.name} "
+                              f"({', '.join(recipe.controllers) or 'it runs none'}), not {', '.join(chosen)}")
+        recipe = replace(recipe, controllers=chosen)
     root = Path(args.root) if args.root else Path("datasets") / recipe.name
     try:
         record_recipe(recipe, root, episodes=args.episodes, seed=args.seed, resume=args.resume,
@@ -147,7 +155,7 @@ def cmd_train_policy(args: argparse.Namespace) -> int:
     torch.set_num_threads(args.threads)
     config = CNNPolicyConfig(camera=args.camera, backbone=args.backbone, epochs=args.epochs, image_size=args.image_size,
                              num_mixtures=args.mixtures, batch_size=args.batch_size, seed=args.seed,
-                             action_space=args.action_space, shift=args.shift)
+                             action_space=args.action_space, shift=args.shift, proprioception=args.proprioception)
     t0 = time.time()
     _, losses = train_cnn_policy(args.dataset, config, out=args.out)
     print(f"trained {args.out} in {time.time() - t0:.0f} s: nll {losses[0]:.3f} -> {losses[-1]:.3f} over {len(losses)} epochs")
@@ -204,7 +212,7 @@ def cmd_train_world_model(args: argparse.Namespace) -> int:
         args.rollouts, args.demos, args.out,
         VAEConfig(camera=args.camera, latent_dim=args.latent_dim, epochs=args.vae_epochs, image_size=args.image_size),
         DynamicsConfig(frame_skip=args.frame_skip, epochs=args.dynamics_epochs, num_mixtures=args.mixtures),
-        controllers=args.controllers.split(",") if args.controllers else None)
+        controllers=args.controllers.split(",") if args.controllers else None, reuse_vae=args.reuse_vae)
     for what, seconds in timings.items():
         print(f"trained {what} in {seconds:.0f} s")
     return 0
@@ -261,6 +269,14 @@ def cmd_compose(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_dataset_drop(args: argparse.Namespace) -> int:
+    """Remove a controller's rollouts (then record them again with `record gear-controller-rollouts --resume`)."""
+    from policy_composer.recording.catalog import drop_controller
+
+    print(f"removed {drop_controller(args.path, args.controller)} episodes of {args.controller} from {args.path}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="policy-composer", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -299,12 +315,14 @@ def build_parser() -> argparse.ArgumentParser:
     tr_policy = tr_sub.add_parser("policy", help="behaviour-clone the CNN + MDN policy (cnn_insert)")
     tr_policy.add_argument("--dataset", default="datasets/gear-insertion-demos")
     tr_policy.add_argument("--camera", default="left_forearm", choices=("head", "left_forearm", "right_forearm"))
-    tr_policy.add_argument("--backbone", default="small", choices=("small", "resnet18"))
+    tr_policy.add_argument("--backbone", default="spatial", choices=("spatial", "small", "resnet18"))
     tr_policy.add_argument("--epochs", type=int, default=200)
     tr_policy.add_argument("--image-size", type=int, default=64)
     tr_policy.add_argument("--mixtures", type=int, default=24)
     tr_policy.add_argument("--action-space", default="hand", choices=("hand", "joint"),
                            help="hand: next TCP displacement in the hand frame (IK to joint targets); joint: joint-target deltas")
+    tr_policy.add_argument("--proprioception", default="gripper", choices=("gripper", "arm"),
+                           help="what the policy reads besides its image: the gripper width, or the arm's joints too")
     tr_policy.add_argument("--shift", type=int, default=4, help="random-shift augmentation in pixels (0: none)")
     tr_policy.add_argument("--batch-size", type=int, default=120)
     tr_policy.add_argument("--seed", type=int, default=0)
@@ -329,6 +347,7 @@ def build_parser() -> argparse.ArgumentParser:
     tr_world.add_argument("--frame-skip", type=int, default=5, help="control steps per dynamics step")
     tr_world.add_argument("--mixtures", type=int, default=5, help="mixture components of each dynamics model")
     tr_world.add_argument("--controllers", default=None, help="comma-separated (default: every controller recorded)")
+    tr_world.add_argument("--reuse-vae", action="store_true", help="keep the VAE in --out; train only dynamics models")
     tr_world.add_argument("--threads", type=int, default=2)
     tr_world.add_argument("--out", default="results/models/world")
     tr_world.set_defaults(func=cmd_train_world_model)
@@ -375,6 +394,8 @@ def build_parser() -> argparse.ArgumentParser:
     record.add_argument("--resolution", type=int, default=128, help="camera width and height in pixels")
     record.add_argument("--clearance", type=float, default=2.0, help="radial clearance between peg and hole, mm")
     record.add_argument("--seed", type=int, default=0, help="first seed (with --resume: the dataset's next one)")
+    record.add_argument("--controllers", default=None,
+                        help="comma-separated subset of the recipe's controllers to record (recipes that run the controllers)")
     record.add_argument("--dmp", default="results/models/dmp", help="DMP library (recipes that run the controllers)")
     record.add_argument("--cnn", default="results/models/cnn_insert", help="CNN checkpoint (recipes that run the controllers)")
     record.set_defaults(func=cmd_record)
@@ -393,6 +414,10 @@ def build_parser() -> argparse.ArgumentParser:
     info = ds_sub.add_parser("info", help="episodes, frames, features, cameras, fps, success rate")
     info.add_argument("path")
     info.set_defaults(func=cmd_dataset_info)
+    drop = ds_sub.add_parser("drop", help="remove one controller's episodes from a controller-rollouts dataset")
+    drop.add_argument("path")
+    drop.add_argument("--controller", required=True)
+    drop.set_defaults(func=cmd_dataset_drop)
     push = ds_sub.add_parser("push", help="upload to the Hugging Face Hub with LeRobotDataset.push_to_hub")
     push.add_argument("path")
     push.add_argument("--repo-id", required=True, help="USER/NAME of the Hub dataset repo")

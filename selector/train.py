@@ -36,18 +36,23 @@ def demo_split(root: str | Path, split: str) -> list[int]:
 
 def train_world_model(rollouts: str | Path, demos: str | Path, out: str | Path, vae_config: VAEConfig | None = None,
                       dynamics_config: DynamicsConfig | None = None, controllers: list[str] | None = None,
-                      progress: bool = True) -> dict[str, float]:
-    """VAE, then every controller's dynamics model; returns the training time of each (s)."""
+                      reuse_vae: bool = False, progress: bool = True) -> dict[str, float]:
+    """VAE, then every controller's dynamics model; returns the training time of each (s). With `reuse_vae`,
+    the VAE already in `out` is kept (to add or retrain some controllers' dynamics models)."""
     out = Path(out)
     vae_config = vae_config or VAEConfig()
     dynamics_config = dynamics_config or DynamicsConfig()
     camera, size = vae_config.camera, vae_config.image_size
     ro = load_frames(rollouts, (camera,), size, required={"controller": (1,)}, progress=progress)
-    demo = load_frames(demos, (camera,), size, demo_split(demos, "train"), progress=progress)
     timings = {}
-    t0 = time.perf_counter()
-    vae, _ = train_vae(torch.cat([ro[image_key(camera)], demo[image_key(camera)]]), vae_config, out / "vae", progress)
-    timings["vae"] = time.perf_counter() - t0
+    if reuse_vae:
+        vae = load_vae(out / "vae")
+        vae_config = vae.config
+    else:
+        demo = load_frames(demos, (camera,), size, demo_split(demos, "train"), progress=progress)
+        t0 = time.perf_counter()
+        vae, _ = train_vae(torch.cat([ro[image_key(camera)], demo[image_key(camera)]]), vae_config, out / "vae", progress)
+        timings["vae"] = time.perf_counter() - t0
     names = read_sidecar(rollouts)["controllers"]
     latents = vae.latents(ro[image_key(camera)])
     for index, name in enumerate(names):

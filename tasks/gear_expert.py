@@ -37,11 +37,12 @@ class ExpertConfig:
     seed: int | None = None  # grasp-offset RNG; None: drawn from the env's episode seed
     closed_loop: bool = True  # False: carry and insert assume a centred grasp (what an open-loop planner knows)
     # Teleoperator style (for demonstrations): carry roughly (as if the grasp were centred, off by up to a further
-    # `arrival_error`), so the gear arrives above the peg off by its grasp offset as after a planner's carry;
-    # pause a random while, then correct with a per-episode gain and speed while the hand wobbles (`wobble`, m).
+    # `arrival_error`), so the gear arrives above the peg off by its grasp offset as after a planner's carry,
+    # then correct it with a per-episode gain and speed. (Pauses and hand wobble were tried and dropped: the
+    # commands they add are unpredictable from what a camera sees, and they drowned the corrections a
+    # behaviour-cloned policy must learn.)
     teleop: bool = False
     arrival_error: float = 0.004
-    wobble: float = 0.0008
 
 
 class GearAssemblyExpert:
@@ -105,13 +106,11 @@ class GearAssemblyExpert:
         solution = self._ik.solve_hand_down(self._grasp_p + [0, 0, 0.08], x, self._q_seed)
         self._cmd_q = solution[0] if solution is not None else hand_down_quat(x)
         self._hold = self._np(env.hold_action())
-        self._rng = rng
         if cfg.teleop:
             self._arrival = np.append(rng.uniform(-cfg.arrival_error, cfg.arrival_error, 2), rng.uniform(0.0, 0.01))
-            self._pause, self._gain, self._speed = int(rng.integers(0, 10)), rng.uniform(0.25, 0.6), rng.uniform(0.6, 1.2)
+            self._gain, self._speed = rng.uniform(0.25, 0.6), rng.uniform(0.6, 1.2)
         else:
-            self._arrival, self._pause, self._gain, self._speed = np.zeros(3), 0, 0.5, 1.0
-        self._drift = np.zeros(3)
+            self._arrival, self._gain, self._speed = np.zeros(3), 0.5, 1.0
 
     def act(self, obs=None) -> torch.Tensor:
         """The next flat 16-D action (left arm moves, right arm holds)."""
@@ -145,12 +144,7 @@ class GearAssemblyExpert:
             target, _ = self._toward(self._cmd_p + 0.5 * error, cfg.max_step)
             if np.linalg.norm(error) < 2e-3:
                 self.phase, self._timer = "insert", 0
-        elif self.phase == "insert" and self._timer <= self._pause:
-            target = sapien.Pose(self._cmd_p, self._cmd_q)  # the operator looks before moving
         elif self.phase == "insert":
-            if cfg.teleop:  # a hand that wobbles: slow random drift that the closed loop keeps correcting
-                self._drift = 0.8 * self._drift + self._rng.normal(0.0, cfg.wobble, 3) * [1, 1, 0.5]
-                self._cmd_p = self._cmd_p + self._drift * 0.2
             peg = self._np(env.peg_module.pose.to_transformation_matrix())
             peg_rot = peg[:3, :3]
             rel = peg_rot.T @ (self._gear_world_p() - peg[:3, 3])

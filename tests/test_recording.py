@@ -18,7 +18,7 @@ import torch
 import tasks  # noqa: F401
 from policies.library import LibraryError, LibrarySources
 from policy_composer.recording import journal
-from policy_composer.recording.catalog import HubUnreachable, push_dataset
+from policy_composer.recording.catalog import HubUnreachable, drop_controller, push_dataset, summarize
 from policy_composer.recording.features import DatasetError, open_dataset
 from policy_composer.recording.recipes import RecipeError, available_recipes, load_recipe
 from policy_composer.recording.record import EnvSettings, record_recipe
@@ -96,7 +96,7 @@ def test_insertion_demos_labels_and_variety(insertion_demos):
 def test_dataset_info_and_push_without_network(insertion_demos, monkeypatch):
     out = subprocess.run([str(BIN / "policy-composer"), "dataset", "info", str(insertion_demos)],
                          capture_output=True, text=True, check=True).stdout
-    assert "episodes:    2" in out and "success:     100%" in out and "head 64x64x3" in out and "fps: 20" in out
+    assert "episodes:    2" in out and "task done:   100% of episodes" in out and "head 64x64x3" in out and "fps: 20" in out
     before = _tree_digest(insertion_demos)
     env = {**os.environ, "HF_HUB_OFFLINE": "1"}
     res = subprocess.run([str(BIN / "policy-composer"), "dataset", "push", str(insertion_demos), "--repo-id", "me/gears"],
@@ -166,8 +166,25 @@ def test_controller_rollouts_name_their_controller(controller_rollouts):
         frames = ds.hf_dataset.filter(lambda r, ep=ep: r["episode_index"] == ep)
         assert {names[int(c)] for c in frames["controller"]} == {name}
         assert len(frames) == sidecar["episodes"][ep]["length"]
+    assert summarize(root)["outcomes"] == {"mp_pick": {"done": 1}, "mp_insert": {"done": 1}}
     stages = np.array(ds.hf_dataset["stage"]).ravel()
     assert stages[0] == 0 and stages[-1] == 3  # the pick starts on the table; the insertion ends seated
+
+
+def test_dropping_a_controllers_rollouts_keeps_the_others(controller_rollouts, tmp_path):
+    import shutil
+
+    root = tmp_path / "rollouts"
+    shutil.copytree(controller_rollouts, root)
+    before = open_dataset(root)
+    pick_rows = before.hf_dataset.filter(lambda r: r["episode_index"] == 0)
+    assert drop_controller(root, "mp_insert") == 1
+    after = open_dataset(root)
+    assert after.num_episodes == 1 and after.num_frames == len(pick_rows)
+    np.testing.assert_array_equal(np.stack(after.hf_dataset["observation.state"]), np.stack(pick_rows["observation.state"]))
+    assert [e["controller_name"] for e in json.loads((root / "meta" / "policy_composer.json").read_text())["episodes"]] == ["mp_pick"]
+    with pytest.raises(DatasetError, match="no episodes of controller 'mp_insert'"):
+        drop_controller(root, "mp_insert")
 
 
 def test_journal_rolls_back_an_unfinished_save(insertion_demos, tmp_path):

@@ -7,8 +7,9 @@ import sapien
 from transforms3d.quaternions import quat2mat
 
 from policies.arm import np0
+from policies.cnn.configuration_cnn import PROPRIOCEPTION
 from policies.cnn.modeling_cnn import CNNPolicy
-from policies.cnn.train import arm_state
+from policies.cnn.train import policy_state
 from policy_composer.recording.frames import to_model_image
 from policies.subtasks import SUBTASKS, LearnedController, Subtask
 from tasks.gear_kinematics import LeftArmIK
@@ -31,7 +32,8 @@ class CNNController(LearnedController):
         super().__init__(env, subtask, f"cnn_{subtask.name}", max_steps)
         check_camera(self.env, policy.config.camera, "the CNN policy")
         self.policy = policy
-        self.obs_keys = (f"sensor_data.{policy.config.camera}.rgb", "extra.state[:8]")
+        sl = PROPRIOCEPTION[policy.config.proprioception]
+        self.obs_keys = (f"sensor_data.{policy.config.camera}.rgb", f"extra.state[{sl.start}:{sl.stop}]")
         self._ik = LeftArmIK(self.env)
 
     def reset(self, obs, seed=None):
@@ -44,7 +46,8 @@ class CNNController(LearnedController):
     def predict(self, obs):
         camera, size = self.policy.config.camera, self.policy.config.image_size
         image = to_model_image(obs["sensor_data"][camera]["rgb"][:1].cpu(), size)
-        a = self.policy.act(image, arm_state(obs["extra"]["state"][:1].cpu().float()))[0].numpy().astype(np.float64)
+        state = policy_state(obs["extra"]["state"][:1].cpu().float(), self.policy.config)
+        a = self.policy.act(image, state)[0].numpy().astype(np.float64)
         gripper = float(np.clip(a[-1], -1.0, 1.0))
         if self.policy.config.action_space == "joint":
             self._command = self._command + a[:7]

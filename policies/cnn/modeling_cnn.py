@@ -11,14 +11,38 @@ from torch import nn
 from policies.cnn.configuration_cnn import CNNPolicyConfig
 
 
+class SpatialSoftmax(nn.Module):
+    """Feature maps (B, C, H, W) -> the expected image coordinates of each channel (B, 2C), in [-1, 1]: where
+    things are, kept precise (Levine et al. 2016, end-to-end visuomotor policies)."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        B, C, H, W = x.shape
+        attention = F.softmax(x.flatten(2), dim=-1).view(B, C, H, W)
+        ys = torch.linspace(-1, 1, H, device=x.device)
+        xs = torch.linspace(-1, 1, W, device=x.device)
+        return torch.cat([(attention.sum(2) * xs).sum(-1), (attention.sum(3) * ys).sum(-1)], dim=-1)
+
+
 def image_encoder(backbone: str, out_dim: int) -> nn.Module:
-    """Images (B, 3, H, W) in [0, 1] -> features (B, out_dim)."""
+    """Images (B, 3, H, W) in [0, 1] -> features (B, out_dim).
+
+    "spatial": four convolutions and a spatial softmax (keypoint coordinates), for policies that must place
+    things precisely; "small": four strided convolutions pooled to 2x2, for global judgements (the goal score);
+    "resnet18": torchvision's, randomly initialised."""
     if backbone == "resnet18":
         from torchvision.models import resnet18
 
         net = resnet18(weights=None)  # no download: trained from scratch on our demonstrations
         net.fc = nn.Linear(net.fc.in_features, out_dim)
         return net
+    if backbone == "spatial":
+        return nn.Sequential(
+            nn.Conv2d(3, 32, 5, stride=2, padding=2), nn.ReLU(),
+            nn.Conv2d(32, 32, 3, stride=2, padding=1), nn.ReLU(),
+            nn.Conv2d(32, 64, 3, stride=1, padding=1), nn.ReLU(),
+            nn.Conv2d(64, 32, 3, stride=1, padding=1),
+            SpatialSoftmax(), nn.Linear(64, out_dim), nn.ReLU(),
+        )
     return nn.Sequential(
         nn.Conv2d(3, 32, 5, stride=2, padding=2), nn.ReLU(),
         nn.Conv2d(32, 64, 3, stride=2, padding=1), nn.ReLU(),
@@ -31,9 +55,10 @@ def image_encoder(backbone: str, out_dim: int) -> nn.Module:
 class MixtureDensityHead(nn.Module):
     """Features -> a mixture of K diagonal Gaussians over a D-dimensional target."""
 
-    def __init__(self, in_dim: int, out_dim: int, num_mixtures: int):
+    def __init__(self, in_dim: int, out_dim: int, num_mixtures: int, min_std: float = 1e-3):
         super().__init__()
         self.D, self.K = out_dim, num_mixtures
+        self.min_log_std = math.log(min_std)
         self.logits = nn.Linear(in_dim, num_mixtures)
         self.means = nn.Linear(in_dim, num_mixtures * out_dim)
         self.log_stds = nn.Linear(in_dim, num_mixtures * out_dim)
@@ -42,7 +67,7 @@ class MixtureDensityHead(nn.Module):
         B = h.shape[0]
         log_pi = F.log_softmax(self.logits(h), dim=-1)
         mu = self.means(h).view(B, self.K, self.D)
-        log_std = self.log_stds(h).view(B, self.K, self.D).clamp(-7.0, 3.0)
+        log_std = self.log_stds(h).view(B, self.K, self.D).clamp(self.min_log_std, 3.0)
         return log_pi, mu, log_std
 
     @staticmethod
@@ -66,7 +91,11 @@ class MixtureDensityHead(nn.Module):
 
 
 class CNNPolicy(nn.Module):
-    """(image, arm state) -> mixture over normalised action targets. Normalisation statistics live in buffers."""
+    """(image, state) -> a mixture over the normalised motion targets, and the odds of an open gripper.
+
+    The gripper command is binary in the demonstrations, so it gets its own logistic output: inside the
+    mixture its two values would draw near-zero variances whose likelihood swamps the motion's, and the
+    components would split on the gripper instead of on the motion. Normalisation statistics live in buffers."""
 
     def __init__(self, config: CNNPolicyConfig):
         super().__init__()
@@ -74,22 +103,31 @@ class CNNPolicy(nn.Module):
         self.encoder = image_encoder(config.backbone, config.hidden_dim)
         self.trunk = nn.Sequential(nn.Linear(config.hidden_dim + config.state_dim, config.hidden_dim), nn.ReLU(),
                                    nn.Linear(config.hidden_dim, config.hidden_dim), nn.ReLU())
-        self.head = MixtureDensityHead(config.hidden_dim, config.action_dim, config.num_mixtures)
-        for name, dim in (("state", config.state_dim), ("action", config.action_dim)):
+        motion = config.action_dim - 1
+        self.head = MixtureDensityHead(config.hidden_dim, motion, config.num_mixtures, config.min_std)
+        self.gripper = nn.Linear(config.hidden_dim, 1)
+        for name, dim in (("state", config.state_dim), ("action", motion)):
             self.register_buffer(f"{name}_mean", torch.zeros(dim))
             self.register_buffer(f"{name}_std", torch.ones(dim))
 
     def forward(self, image: torch.Tensor, state: torch.Tensor):
-        """image (B, 3, S, S) in [0, 1]; state (B, state_dim) raw."""
+        """image (B, 3, S, S) in [0, 1]; state (B, state_dim) raw -> (mixture parameters, gripper-open logit)."""
         h = self.encoder(image)
         s = (state - self.state_mean) / self.state_std
-        return self.head(self.trunk(torch.cat([h, s], dim=-1)))
+        h = self.trunk(torch.cat([h, s], dim=-1))
+        return self.head(h), self.gripper(h)[:, 0]
 
     def loss(self, image, state, action) -> torch.Tensor:
-        return self.head.nll(*self(image, state), (action - self.action_mean) / self.action_std)
+        """NLL of the motion target plus the gripper's cross-entropy; action (B, action_dim), gripper last."""
+        params, logit = self(image, state)
+        nll = self.head.nll(*params, (action[:, :-1] - self.action_mean) / self.action_std)
+        return nll + F.binary_cross_entropy_with_logits(logit, (action[:, -1] > 0).float())
 
     @torch.no_grad()
     def act(self, image, state, sample: bool = False, generator: torch.Generator | None = None) -> torch.Tensor:
-        params = self(image, state)
-        a = self.head.sample(*params, generator=generator) if sample else self.head.mode(*params)
-        return a * self.action_std + self.action_mean
+        """(B, action_dim): the motion target (sampled, or the most probable component's mean) and the gripper
+        command, +1 (open) or -1."""
+        params, logit = self(image, state)
+        motion = self.head.sample(*params, generator=generator) if sample else self.head.mode(*params)
+        gripper = torch.where(logit > 0, 1.0, -1.0)[:, None]
+        return torch.cat([motion * self.action_std + self.action_mean, gripper], dim=-1)

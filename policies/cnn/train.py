@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from policies.cnn.configuration_cnn import ARM_DIM, CNNPolicyConfig
+from policies.cnn.configuration_cnn import PROPRIOCEPTION, CNNPolicyConfig
 from policies.cnn.modeling_cnn import CNNPolicy
 from policy_composer.checkpoint import CheckpointError, load_checkpoint, load_config, save_checkpoint
 from policy_composer.recording.features import image_key
@@ -21,9 +21,9 @@ from policy_composer.recording.frames import load_frames, random_shift
 from tasks.gear_kinematics import PandaForwardKinematics
 
 
-def arm_state(state16: torch.Tensor) -> torch.Tensor:
-    """The left arm's 7 joints and gripper width from observation.state."""
-    return state16[..., :ARM_DIM]
+def policy_state(state16: torch.Tensor, config: CNNPolicyConfig) -> torch.Tensor:
+    """What the policy reads of observation.state (see PROPRIOCEPTION)."""
+    return state16[..., PROPRIOCEPTION[config.proprioception]]
 
 
 def previous_commands(state16: torch.Tensor, action16: torch.Tensor, episode_index: torch.Tensor) -> torch.Tensor:
@@ -59,7 +59,7 @@ def load_demonstrations(root: str | Path, config: CNNPolicyConfig, episodes: lis
                          required={"observation.state": (16,), "action": (16,)}, progress=progress)
     state, action = frames["observation.state"], frames["action"]
     prev = previous_commands(state, action, frames["episode_index"])
-    return {"image": frames[image_key(config.camera)], "state": arm_state(state),
+    return {"image": frames[image_key(config.camera)], "state": policy_state(state, config),
             "action": action_target(state, action, prev, config.action_space)}
 
 
@@ -72,11 +72,13 @@ def train_cnn_policy(root: str | Path, config: CNNPolicyConfig, out: str | Path 
     torch.manual_seed(config.seed)
     data = data if data is not None else load_demonstrations(root, config, progress=progress)
     model = CNNPolicy(config)
-    for name in ("state", "action"):
-        x = data[name].float()
+    for name, x in (("state", data["state"].float()), ("action", data["action"][:, :-1].float())):
         getattr(model, f"{name}_mean").copy_(x.mean(0))
         getattr(model, f"{name}_std").copy_(x.std(0).clamp_min(1e-5))
     opt = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    # Cosine decay to zero: a mixture density network's loss spikes now and then, and the last epoch's
+    # weights are the ones kept, so end on small steps.
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=config.epochs)
     n, losses = len(data["image"]), []
     gen = torch.Generator().manual_seed(config.seed)
     bar = tqdm(range(config.epochs), desc="training cnn policy", unit="epoch", disable=not progress)
@@ -90,6 +92,7 @@ def train_cnn_policy(root: str | Path, config: CNNPolicyConfig, out: str | Path 
             loss.backward()
             opt.step()
             total += loss.item() * len(idx)
+        schedule.step()
         losses.append(total / n)
         bar.set_postfix(nll=f"{losses[-1]:.3f}")
     model.eval()

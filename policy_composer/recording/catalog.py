@@ -52,11 +52,22 @@ def summarize(root: str | Path) -> dict:
         "success_rate": None if not success else sum(success) / len(success),
         "recipe": sidecar.get("recipe"),
         "controllers": sidecar.get("controllers"),
+        "outcomes": _outcomes(sidecar),
     }
     if sidecar.get("train_episodes") is not None:
         n = min(sidecar["train_episodes"], info["total_episodes"])
         summary["splits"] = {"train": f"0:{n}", "heldout": f"{n}:{info['total_episodes']}"}
     return summary
+
+
+def _outcomes(sidecar: dict) -> dict[str, dict[str, int]]:
+    """Per controller, how its recorded activations ended (datasets recorded with the controllers driver)."""
+    outcomes: dict[str, dict[str, int]] = {}
+    for e in sidecar.get("episodes", []):
+        if "controller_name" in e:
+            counts = outcomes.setdefault(e["controller_name"], {})
+            counts[e["outcome"]] = counts.get(e["outcome"], 0) + 1
+    return outcomes
 
 
 def format_summary(summary: dict) -> str:
@@ -65,7 +76,9 @@ def format_summary(summary: dict) -> str:
         lines.append(f"  recipe:      {summary['recipe']}")
     lines.append(f"  episodes:    {summary['episodes']}   frames: {summary['frames']}   fps: {summary['fps']}")
     rate = summary["success_rate"]
-    lines.append(f"  success:     {'unknown (no next.success)' if rate is None else f'{100 * rate:.0f}%'}")
+    lines.append(f"  task done:   {'unknown (no next.success)' if rate is None else f'{100 * rate:.0f}%'} of episodes")
+    for name, counts in summary.get("outcomes", {}).items():
+        lines.append(f"  {name + ':':12s} " + ", ".join(f"{n} {outcome}" for outcome, n in counts.items()))
     if "splits" in summary:
         lines.append("  splits:      " + ", ".join(f"{k} {v}" for k, v in summary["splits"].items()))
     lines.append("  cameras:     " + ", ".join(f"{c} {'x'.join(map(str, s))}" for c, s in summary["cameras"].items()))
@@ -108,3 +121,32 @@ def push_dataset(root: str | Path, repo_id: str, private: bool = False, branch: 
     dataset = LeRobotDataset(repo_id, root=root)
     dataset.push_to_hub(branch=branch, private=private, tags=["policy-composer", "maniskill", "gear-assembly"])
     return f"https://huggingface.co/datasets/{repo_id}"
+
+
+def drop_controller(root: str | Path, controller: str) -> int:
+    """Remove one controller's episodes from a controller-rollouts dataset (to record them again after
+    retraining it, with `record --resume`); returns how many were removed. LeRobot's `delete_episodes` writes
+    the new dataset beside the old one, which is swapped in only once complete."""
+    import json
+    import shutil
+
+    from lerobot.datasets.dataset_tools import delete_episodes
+
+    from policy_composer.recording.features import SIDECAR, DatasetError, open_dataset
+
+    root = Path(root)
+    sidecar = read_sidecar(root)
+    drop = [i for i, e in enumerate(sidecar.get("episodes", [])) if e.get("controller_name") == controller]
+    if not drop:
+        raise DatasetError(f"{root} has no episodes of controller {controller!r} "
+                           f"(it has {sorted({e.get('controller_name') for e in sidecar.get('episodes', [])} - {None})})")
+    new_root = root.with_name(root.name + ".dropping")
+    shutil.rmtree(new_root, ignore_errors=True)
+    delete_episodes(open_dataset(root), drop, output_dir=new_root, repo_id=sidecar.get("repo_id"))
+    sidecar["episodes"] = [e for i, e in enumerate(sidecar["episodes"]) if i not in set(drop)]
+    (new_root / SIDECAR).write_text(json.dumps(sidecar, indent=1))
+    old_root = root.with_name(root.name + ".dropped")
+    root.rename(old_root)
+    new_root.rename(root)
+    shutil.rmtree(old_root)
+    return len(drop)
