@@ -87,7 +87,8 @@ def main() -> None:
                                             dyn_config.batch_size, dyn_config.epochs, args.rollout_frames // len(ALL_NAMES)),
         "goal score (one camera)": (fit(goal, lambda b: goal.loss(images[:b], torch.rand(b))), goal_config.batch_size,
                                     goal_config.epochs, 2 * args.demo_frames),
-        "CNN policy": (fit(cnn, lambda b: cnn.loss(images[:b], torch.randn(b, 8), torch.randn(b, cnn.config.action_dim))),
+        "CNN policy": (fit(cnn, lambda b: cnn.loss(images[:b], torch.randn(b, cnn.config.state_dim),
+                                                   torch.randn(b, cnn.config.action_dim))),
                        CNNPolicyConfig().batch_size, CNNPolicyConfig().epochs, args.insertion_frames),
     }
     for name, (step, batch, epochs, frames) in runs.items():

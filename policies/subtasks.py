@@ -88,12 +88,12 @@ class Pick(Subtask):
 
 class Move(Subtask):
     name = "move"
-    initiation = "gear grasped and lifted off the table"
+    initiation = "gear grasped and lifted off the table, not yet held above the peg"
     holds_gear = True
 
     def can_start(self, scene):
         info = scene.info()
-        return info["gear_lifted"] and not info["gear_inserted"]
+        return info["gear_lifted"] and not info["gear_at_peg"] and not info["gear_inserted"]
 
     def waypoints(self, ik, scene, q_now, grasp_offset):
         _, q = ik_hand_down(ik, scene, scene.pre_insertion_tcp(), q_now)

@@ -2,8 +2,8 @@
 
 At each decision it scores every controller whose initiation set holds the current state, runs the best one,
 and decides again when it terminates (succeeded, failed, or stopped for safety) and, optionally, every
-`reselect_every` control steps. The episode ends when no controller may start (the task is done, or nothing
-applies) or at `max_steps`.
+`reselect_every` control steps; a controller that has just succeeded is left out of the next decision. The
+episode ends when no controller may start (the task is done, or nothing applies) or at `max_steps`.
 """
 
 from __future__ import annotations
@@ -73,7 +73,11 @@ def compose_episode(env, library: dict[str, Controller], world: GearWorldModel, 
             if current is not None:
                 current.outcome = running.outcome.value if running.done(obs) else "preempted"
                 current.reason = getattr(running, "reason", "")
-            applicable = torch.tensor([[library[n].can_start(obs) for n in names]])
+            # A controller that has just succeeded is not chosen again at once: its subtask is done, and where
+            # the next subtask's initiation set and its own overlap (a gear at the edge of the pre-insertion
+            # pose), re-running it would only repeat itself.
+            just_done = running.name if running is not None and running.outcome.value == "done" else None
+            applicable = torch.tensor([[library[n].can_start(obs) and n != just_done for n in names]])
             if not applicable.any():
                 break
             decision = selector.decide(world.encode(obs), applicable)
