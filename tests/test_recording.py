@@ -235,7 +235,10 @@ def test_interrupted_recording_keeps_finished_episodes_and_resumes(tmp_path, sig
 
     root = tmp_path / "demos"
     env = {**os.environ, "HF_HUB_OFFLINE": "1"}
-    proc = subprocess.Popen(_record_cmd(root, 2), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    # The recorder as a foreground process would run: a child inherits an ignored SIGINT (as background jobs
+    # have it), in which case Python never turns Ctrl-C into KeyboardInterrupt.
+    proc = subprocess.Popen(_record_cmd(root, 2), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     _wait_for_episodes(proc, root, 1)
     proc.send_signal(getattr(signal, sig))
     rc = proc.wait(timeout=120)
