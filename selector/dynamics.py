@@ -18,6 +18,7 @@ from torch import nn
 from policies.cnn.modeling_cnn import MixtureDensityHead
 from policy_composer.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from policy_composer.recording.frames import episode_bounds
+from policy_composer.training import fit_epochs
 from selector.configuration import DynamicsConfig
 from selector.vae import VAE
 
@@ -77,8 +78,6 @@ def transition_pairs(episode_index: torch.Tensor, frame_skip: int) -> tuple[torc
 def train_dynamics(latents: torch.Tensor, images: torch.Tensor, episode_index: torch.Tensor, config: DynamicsConfig,
                    vae: VAE, out: str | Path | None = None, progress: bool = True) -> tuple[LatentDynamics, list[float]]:
     """Fit D_w on one controller's frames: latents (N, L) from the VAE, their uint8 images and episodes."""
-    from tqdm import tqdm
-
     t0 = time.perf_counter()
     if len(latents) < 2:
         raise ValueError(f"controller {config.controller!r} has {len(latents)} recorded frames; record its rollouts "
@@ -95,21 +94,9 @@ def train_dynamics(latents: torch.Tensor, images: torch.Tensor, episode_index: t
         p.requires_grad_(False)
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
     gen = torch.Generator().manual_seed(config.seed)
-    losses = []
-    bar = tqdm(range(config.epochs), desc=f"training dynamics ({config.controller})", unit="epoch", disable=not progress)
-    for _ in bar:
-        model.train()
-        total = 0.0
-        for idx in torch.randperm(len(src), generator=gen).split(config.batch_size):
-            s, d = src[idx], dst[idx]
-            loss = model.loss(latents[s], latents[d], vae, images[d].float() / 255.0)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            total += loss.item() * len(idx)
-        losses.append(total / len(src))
-        bar.set_postfix(loss=f"{losses[-1]:.2f}")
-    model.eval()
+    losses = fit_epochs(model, opt, len(src), config.batch_size, config.epochs,
+                        lambda idx: model.loss(latents[src[idx]], latents[dst[idx]], vae, images[dst[idx]].float() / 255.0),
+                        gen, f"training dynamics ({config.controller})", progress, digits=2)
     if out is not None:
         log = {"pairs": len(src), "losses": losses, "seconds": round(time.perf_counter() - t0, 1)}
         save_checkpoint(model, config, out, log)

@@ -19,6 +19,7 @@ from torch import nn
 from policies.cnn.modeling_cnn import MixtureDensityHead, image_encoder
 from policy_composer.checkpoint import load_checkpoint, save_checkpoint
 from policy_composer.recording.frames import episode_bounds, random_shift, to_model_image
+from policy_composer.training import fit_epochs
 from selector.configuration import GoalScoreConfig
 
 TRAIN_HINT = "policy-composer train goal-score"
@@ -56,8 +57,6 @@ class GoalScoreModel(nn.Module):
 def train_goal_score(images: torch.Tensor, progress: torch.Tensor, config: GoalScoreConfig,
                      out: str | Path | None = None, progress_bar: bool = True) -> tuple[GoalScoreModel, list[float]]:
     """Fit G to uint8 images (N, 3, S, S) and their progress labels in [0, 1]."""
-    from tqdm import tqdm
-
     t0 = time.perf_counter()
     if progress.min() < 0:
         raise ValueError("progress labels must be in [0, 1]: train the goal score on successful demonstrations only")
@@ -65,22 +64,10 @@ def train_goal_score(images: torch.Tensor, progress: torch.Tensor, config: GoalS
     model = GoalScoreModel(config)
     opt = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     gen = torch.Generator().manual_seed(config.seed)
-    losses = []
-    bar = tqdm(range(config.epochs), desc=f"training goal score ({config.camera})", unit="epoch",
-               disable=not progress_bar)
-    for _ in bar:
-        model.train()
-        total = 0.0
-        for idx in torch.randperm(len(images), generator=gen).split(config.batch_size):
-            x = random_shift(images[idx].float() / 255.0, config.shift, gen)
-            loss = model.loss(x, progress[idx].float())
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            total += loss.item() * len(idx)
-        losses.append(total / len(images))
-        bar.set_postfix(nll=f"{losses[-1]:.3f}")
-    model.eval()
+    losses = fit_epochs(model, opt, len(images), config.batch_size, config.epochs,
+                        lambda idx: model.loss(random_shift(images[idx].float() / 255.0, config.shift, gen),
+                                               progress[idx].float()),
+                        gen, f"training goal score ({config.camera})", progress_bar, postfix="nll")
     if out is not None:
         log = {"frames": len(images), "losses": losses, "seconds": round(time.perf_counter() - t0, 1)}
         save_checkpoint(model, config, out, log)

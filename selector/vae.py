@@ -14,6 +14,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from policy_composer.checkpoint import load_checkpoint, save_checkpoint
+from policy_composer.training import fit_epochs
 from selector.configuration import VAEConfig
 
 TRAIN_HINT = "policy-composer train world-model"
@@ -65,27 +66,14 @@ class VAE(nn.Module):
 def train_vae(images: torch.Tensor, config: VAEConfig, out: str | Path | None = None,
               progress: bool = True) -> tuple[VAE, list[float]]:
     """Fit the VAE to uint8 images (N, 3, S, S); returns it and the per-epoch mean loss."""
-    from tqdm import tqdm
-
     t0 = time.perf_counter()
     torch.manual_seed(config.seed)
     model = VAE(config)
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
     gen = torch.Generator().manual_seed(config.seed)
-    losses = []
-    bar = tqdm(range(config.epochs), desc=f"training VAE ({config.camera})", unit="epoch", disable=not progress)
-    for _ in bar:
-        model.train()
-        total = 0.0
-        for idx in torch.randperm(len(images), generator=gen).split(config.batch_size):
-            loss, recon = model.loss(images[idx].float() / 255.0)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            total += loss.item() * len(idx)
-        losses.append(total / len(images))
-        bar.set_postfix(loss=f"{losses[-1]:.1f}")
-    model.eval()
+    losses = fit_epochs(model, opt, len(images), config.batch_size, config.epochs,
+                        lambda idx: model.loss(images[idx].float() / 255.0)[0], gen,
+                        f"training VAE ({config.camera})", progress, digits=1)
     if out is not None:
         log = {"frames": len(images), "losses": losses, "seconds": round(time.perf_counter() - t0, 1)}
         save_checkpoint(model, config, out, log)

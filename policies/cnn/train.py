@@ -18,6 +18,7 @@ from policies.cnn.modeling_cnn import CNNPolicy
 from policy_composer.checkpoint import CheckpointError, load_checkpoint, load_config, save_checkpoint
 from policy_composer.recording.features import image_key
 from policy_composer.recording.frames import load_frames, random_shift
+from policy_composer.training import fit_epochs
 from tasks.gear_kinematics import PandaForwardKinematics
 
 
@@ -66,8 +67,6 @@ def load_demonstrations(root: str | Path, config: CNNPolicyConfig, episodes: lis
 def train_cnn_policy(root: str | Path, config: CNNPolicyConfig, out: str | Path | None = None,
                      progress: bool = True, data: dict[str, torch.Tensor] | None = None) -> tuple[CNNPolicy, list[float]]:
     """Fit the policy by maximum likelihood of the demonstrated actions; returns it and the loss per epoch."""
-    from tqdm import tqdm
-
     t0 = time.perf_counter()
     torch.manual_seed(config.seed)
     data = data if data is not None else load_demonstrations(root, config, progress=progress)
@@ -79,23 +78,15 @@ def train_cnn_policy(root: str | Path, config: CNNPolicyConfig, out: str | Path 
     # Cosine decay to zero: a mixture density network's loss spikes now and then, and the last epoch's
     # weights are the ones kept, so end on small steps.
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=config.epochs)
-    n, losses = len(data["image"]), []
+    n = len(data["image"])
     gen = torch.Generator().manual_seed(config.seed)
-    bar = tqdm(range(config.epochs), desc="training cnn policy", unit="epoch", disable=not progress)
-    for _ in bar:
-        model.train()
-        total = 0.0
-        for idx in torch.randperm(n, generator=gen).split(config.batch_size):
-            images = random_shift(data["image"][idx].float() / 255.0, config.shift, gen)
-            loss = model.loss(images, data["state"][idx], data["action"][idx])
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            total += loss.item() * len(idx)
-        schedule.step()
-        losses.append(total / n)
-        bar.set_postfix(nll=f"{losses[-1]:.3f}")
-    model.eval()
+
+    def batch_loss(idx: torch.Tensor) -> torch.Tensor:
+        images = random_shift(data["image"][idx].float() / 255.0, config.shift, gen)
+        return model.loss(images, data["state"][idx], data["action"][idx])
+
+    losses = fit_epochs(model, opt, n, config.batch_size, config.epochs, batch_loss, gen, "training cnn policy",
+                        progress, schedule=schedule, postfix="nll")
     if out is not None:
         log = {"dataset": str(root), "frames": n, "losses": losses, "seconds": round(time.perf_counter() - t0, 1)}
         save_cnn_policy(model, out, log)
