@@ -48,11 +48,20 @@ def names_of_kind(kind: str) -> tuple[str, ...]:
 
 def cameras_needed(names, sources: LibrarySources) -> tuple[str, ...]:
     """The cameras the named controllers read (an env must render them)."""
-    if not any(n.startswith("cnn_") for n in names):
-        return ()
-    from policies.cnn.train import load_cnn_policy
+    import json
+    from pathlib import Path
 
-    return (load_cnn_policy(sources.cnn).config.camera,)
+    cameras = []
+    if any(n.startswith("cnn_") for n in names):
+        from policies.cnn.train import load_cnn_policy
+
+        cameras.append(load_cnn_policy(sources.cnn).config.camera)
+    for source in sources.lerobot:
+        config = Path(source.path) / "config.json"
+        if (source.name or f"lerobot_{source.subtask}") in names and config.is_file():
+            features = json.loads(config.read_text()).get("input_features", {})
+            cameras += [k.removeprefix("observation.images.") for k in features if k.startswith("observation.images.")]
+    return tuple(dict.fromkeys(cameras))
 
 
 def build_library(env, names=None, sources: LibrarySources | None = None) -> dict[str, Controller]:

@@ -10,14 +10,9 @@ from pathlib import Path
 
 
 def _make_env(obs_mode: str, args: argparse.Namespace, cameras: tuple[str, ...] | None = None, **kwargs):
-    import gymnasium as gym
+    from policy_composer.rollout import make_env
 
-    import tasks  # noqa: F401  (registers GearAssembly-v1)
-
-    if cameras is not None:
-        kwargs["cameras"] = cameras
-    return gym.make("GearAssembly-v1", obs_mode=obs_mode, camera_width=args.resolution, camera_height=args.resolution,
-                    clearance=args.clearance / 1000.0, **kwargs)
+    return make_env(obs_mode, args.resolution, args.clearance, cameras, **kwargs)
 
 
 def _expert(env, args: argparse.Namespace):
@@ -28,6 +23,15 @@ def _expert(env, args: argparse.Namespace):
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
+    """The main job: the whole paper, stage by stage (finished stages are reused), then the report."""
+    from policy_composer.demo import run_demo
+
+    records, report = run_demo(args.profile, args.out)
+    print(f"report: {report} and {report.with_suffix('.html')} (open it in a browser)")
+    return 0
+
+
+def cmd_expert(args: argparse.Namespace) -> int:
     """Run the scripted expert on a few seeds, print each success and write an mp4 of the three cameras."""
     import imageio
     from tqdm import tqdm
@@ -80,23 +84,25 @@ def cmd_record(args: argparse.Namespace) -> int:
     """Record a recipe's dataset (see datasets/recipes/) into a LeRobotDataset."""
     from dataclasses import replace
 
-    from policies.library import LibrarySources
+    from policies.library import LeRobotSource, LibrarySources
     from policy_composer.recording.catalog import format_summary, summarize
     from policy_composer.recording.recipes import RecipeError, load_recipe
     from policy_composer.recording.record import EnvSettings, record_recipe
 
     recipe = load_recipe(args.recipe)
+    lerobot = tuple(LeRobotSource(*spec.split(":", 1)) for spec in args.lerobot)
     if args.controllers:
         chosen = tuple(args.controllers.split(","))
-        if recipe.driver != "controllers" or set(chosen) - set(recipe.controllers):
-            raise RecipeError(f"--controllers must name controllers of recipe {recipe.name} "
-                              f"({', '.join(recipe.controllers) or 'it runs none'}), not {', '.join(chosen)}")
+        known = (*recipe.controllers, *(s.name or f"lerobot_{s.subtask}" for s in lerobot))
+        if recipe.driver != "controllers" or set(chosen) - set(known):
+            raise RecipeError(f"--controllers must name controllers of recipe {recipe.name} or --lerobot ones "
+                              f"({', '.join(known) or 'it runs none'}), not {', '.join(chosen)}")
         recipe = replace(recipe, controllers=chosen)
     root = Path(args.root) if args.root else Path("datasets") / recipe.name
     try:
         record_recipe(recipe, root, episodes=args.episodes, seed=args.seed, resume=args.resume,
                       settings=EnvSettings(resolution=args.resolution, clearance_mm=args.clearance),
-                      sources=LibrarySources(dmp=args.dmp, cnn=args.cnn))
+                      sources=LibrarySources(dmp=args.dmp, cnn=args.cnn, lerobot=lerobot))
     except KeyboardInterrupt:
         print(f"\ninterrupted: every finished episode is saved in {root}; continue with --resume", file=sys.stderr)
         return 130
@@ -127,21 +133,16 @@ def cmd_mdp(args: argparse.Namespace) -> int:
     """The paper's random-walk experiments: 19 states (planning steps, solution figure), 100 states (noise heatmap)."""
     from policy_composer import mdp
 
-    out = Path(args.out)
     t0 = time.time()
-    s19 = mdp.experiment_19(out, episodes=args.episodes_19, seed=args.seed)
+    units = ("lookahead", "step") if args.noise_unit == "both" else (args.noise_unit,)
+    s19, heatmaps = mdp.run_experiments(Path(args.out), args.episodes_19, args.episodes_100, units, args.seed)
     print(f"19 states, p = 0.2: {s19['mean_planning_steps']:.2f} planning steps on average "
           f"(paper: {mdp.PAPER['planning_steps_19']}), {100 * s19['success_rate']:.1f}% reach the goal")
-    units = ("lookahead", "step") if args.noise_unit == "both" else (args.noise_unit,)
-    heatmaps = {}
-    for unit in units:
-        t = time.time()
-        heatmaps[unit] = mdp.heatmap_100(out, episodes=args.episodes_100, seed=args.seed, dyn_noise_unit=unit)
-        c = heatmaps[unit]["claims"]
-        print(f"100-state heatmap ({unit}, {time.time() - t:.0f} s): {c['range'][0]:.1f} to {c['range'][1]:.1f} "
+    for unit, h in heatmaps.items():
+        c = h["claims"]
+        print(f"100-state heatmap ({unit}): {c['range'][0]:.1f} to {c['range'][1]:.1f} "
               f"activations (paper: {mdp.PAPER['heatmap_min']} to {mdp.PAPER['heatmap_max']})")
-    report = mdp.write_report(out, s19, heatmaps)
-    print(f"report: {report} ({time.time() - t0:.0f} s)")
+    print(f"report: {Path(args.out) / 'mdp_report.md'} ({time.time() - t0:.0f} s)")
     return 0
 
 
@@ -177,25 +178,13 @@ def cmd_train_dmp(args: argparse.Namespace) -> int:
 
 def cmd_evaluate_controllers(args: argparse.Namespace) -> int:
     """Paper Table I, rows MP, DMP and CNN."""
-    import torch
-    from tqdm import tqdm
+    from policies.library import LibrarySources
+    from policy_composer.controller_table import evaluate_table, write_table
 
-    from policies.library import LibrarySources, build_library, cameras_needed, names_of_kind
-    from policy_composer.controller_table import evaluate_kind, write_table
-
-    torch.set_num_threads(1)
     sources = LibrarySources(dmp=args.dmp, cnn=args.cnn, max_grasp_offset=args.grasp_offset / 1000.0)
-    rows = {}
-    for kind in args.kinds.split(","):
-        names = names_of_kind(kind)
-        cameras = cameras_needed(names, sources)
-        env = _make_env("rgb" if cameras else "state_dict", args, cameras=cameras or None)
-        ctrls = {c.subtask.name: c for c in build_library(env, names, sources).values()}
-        n_cols = len(ctrls) + (len(ctrls) == 3)
-        with tqdm(total=n_cols * args.trials, desc=f"{kind} controllers", unit="trial") as bar:
-            rows[kind] = evaluate_kind(env, ctrls, args.trials, args.seed, on_trial=bar.update)
-        env.close()
-        print(f"{kind}: " + ", ".join(f"{c} {cell}" for c, cell in rows[kind].items()))
+    rows = evaluate_table(args.kinds.split(","), sources, args.trials, args.seed, args.resolution, args.clearance)
+    for kind, row in rows.items():
+        print(f"{kind}: " + ", ".join(f"{c} {cell}" for c, cell in row.items()))
     print(f"table: {write_table(rows, Path(args.out))}")
     return 0
 
@@ -245,25 +234,17 @@ def cmd_evaluate_goal_score(args: argparse.Namespace) -> int:
 
 def cmd_compose(args: argparse.Namespace) -> int:
     """The selector composes the whole library in GearAssembly-v1 rollouts (paper Table I, composed row)."""
-    import torch
-
-    from policies.library import LeRobotSource, LibrarySources, build_library, cameras_needed
-    from policy_composer.composition import run_composition
+    from policies.library import LeRobotSource, LibrarySources
+    from policy_composer.composition import compose_library
     from selector.compose import ComposeConfig
-    from selector.world_model import GearWorldModel
 
-    torch.set_num_threads(1)
     lerobot = tuple(LeRobotSource(*spec.split(":", 1)) for spec in args.lerobot)
     sources = LibrarySources(dmp=args.dmp, cnn=args.cnn, lerobot=lerobot, max_grasp_offset=args.grasp_offset / 1000.0)
-    world = GearWorldModel.load(args.models)
-    names = [n for n in world.dynamics]
-    cameras = tuple(dict.fromkeys((world.camera, *cameras_needed(names, sources))))
-    env = _make_env("rgb", args, cameras=cameras, knock_out_step=args.knock_out_step)
-    library = build_library(env, names, sources)
-    config = ComposeConfig(horizon=args.horizon, samples=args.samples, reselect_every=args.reselect_every)
-    episodes = run_composition(env, library, world, config, list(range(args.seed, args.seed + args.episodes)),
-                               Path(args.out), videos=args.videos)
-    env.close()
+    config = ComposeConfig(horizon=args.horizon, samples=args.samples, reselect_every=args.reselect_every,
+                           max_failures=args.max_failures)
+    episodes = compose_library(args.models, sources, config, list(range(args.seed, args.seed + args.episodes)),
+                               Path(args.out), videos=args.videos, resolution=args.resolution,
+                               clearance_mm=args.clearance, knock_out_step=args.knock_out_step, resume=args.resume)
     ok = sum(e.success for e in episodes)
     print(f"composed: {ok}/{len(episodes)} full-task successes -> {Path(args.out) / 'summary.md'}")
     return 0
@@ -287,11 +268,16 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--grasp-offset", type=float, default=12.0, help="max grasp offset of the gear in the gripper, mm")
         p.add_argument("--seed", type=int, default=0, help="first seed")
 
-    demo = sub.add_parser("demo", help="the main job (first version): the scripted expert, with videos")
-    env_options(demo)
-    demo.add_argument("--episodes", type=int, default=3)
-    demo.add_argument("--out", default="results/demo", help="folder for the videos")
+    demo = sub.add_parser("demo", help="the main job: record, train, evaluate, compose, the MDP, the report")
+    demo.add_argument("--profile", default="quick", choices=("quick", "paper", "smoke"),
+                      help="quick: 30 min on 2 CPU cores; paper: the paper's sizes; smoke: every stage, tiny (tests)")
+    demo.add_argument("--out", default="results", help="report.md, report.html and the stages' outputs (pipeline/)")
     demo.set_defaults(func=cmd_demo)
+    expert = sub.add_parser("expert", help="the scripted expert on a few seeds, with videos of the three cameras")
+    env_options(expert)
+    expert.add_argument("--episodes", type=int, default=3)
+    expert.add_argument("--out", default="results/expert", help="folder for the videos")
+    expert.set_defaults(func=cmd_expert)
 
     evaluate = sub.add_parser("evaluate", help="measure success rates")
     ev_sub = evaluate.add_subparsers(dest="what", required=True)
@@ -379,9 +365,12 @@ def build_parser() -> argparse.ArgumentParser:
     compose.add_argument("--horizon", type=int, default=10)
     compose.add_argument("--samples", type=int, default=16)
     compose.add_argument("--reselect-every", type=int, default=None, help="also decide every this many control steps")
+    compose.add_argument("--max-failures", type=int, default=2,
+                         help="a controller that failed this often since the last success is not chosen again")
     compose.add_argument("--knock-out-step", type=int, default=None,
                          help="perturbation: knock the gear out of the gripper at this control step (or when next lifted)")
     compose.add_argument("--videos", type=int, default=1, help="episodes to write a video of")
+    compose.add_argument("--resume", action="store_true", help="keep the episodes already in --out; run the other seeds")
     compose.add_argument("--out", default="results/compose")
     compose.set_defaults(func=cmd_compose)
 
@@ -398,6 +387,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="comma-separated subset of the recipe's controllers to record (recipes that run the controllers)")
     record.add_argument("--dmp", default="results/models/dmp", help="DMP library (recipes that run the controllers)")
     record.add_argument("--cnn", default="results/models/cnn_insert", help="CNN checkpoint (recipes that run the controllers)")
+    record.add_argument("--lerobot", action="append", default=[], metavar="PATH:SUBTASK",
+                        help="a lerobot checkpoint as controller lerobot_SUBTASK (name it in --controllers)")
     record.set_defaults(func=cmd_record)
 
     mdp = sub.add_parser("mdp", help="the paper's random-walk MDP experiments (19 and 100 states)")

@@ -40,16 +40,45 @@ class VideoWriter:
         return path
 
 
+def compose_library(models: str | Path, sources, config: ComposeConfig, seeds: list[int], out: Path, videos: int = 1,
+                    resolution: int = 128, clearance_mm: float = 2.0, knock_out_step: int | None = None,
+                    resume: bool = False, progress: bool = True) -> list[ComposedEpisode]:
+    """Load the world model in `models`, build every controller it has a dynamics model of from `sources`
+    (a `LibrarySources`), and compose on each seed in an env with the cameras they all need."""
+    import torch
+
+    from policies.library import build_library, cameras_needed
+    from policy_composer.rollout import make_env
+
+    torch.set_num_threads(1)
+    world = GearWorldModel.load(models)
+    names = list(world.dynamics)
+    cameras = tuple(dict.fromkeys((world.camera, *cameras_needed(names, sources))))
+    env = make_env("rgb", resolution, clearance_mm, cameras, knock_out_step=knock_out_step)
+    try:
+        return run_composition(env, build_library(env, names, sources), world, config, seeds, out, videos, resume,
+                               progress)
+    finally:
+        env.close()
+
+
 def run_composition(env, library: dict, world: GearWorldModel, config: ComposeConfig, seeds: list[int], out: Path,
-                    videos: int = 1, progress: bool = True) -> list[ComposedEpisode]:
-    """Compose on each seed; write episodes.jsonl (decision logs), summary.md and the first `videos` videos."""
+                    videos: int = 1, resume: bool = False, progress: bool = True) -> list[ComposedEpisode]:
+    """Compose on each seed; write episodes.jsonl (decision logs), summary.md and the first `videos` videos.
+    With `resume`, the episodes already in episodes.jsonl are kept and their seeds not run again."""
     from tqdm import tqdm
 
     out.mkdir(parents=True, exist_ok=True)
-    episodes = []
-    log = open(out / "episodes.jsonl", "w")
+    path = out / "episodes.jsonl"
+    done = {}
+    if resume and path.exists():
+        done = {e.seed: e for e in map(ComposedEpisode.from_dict, map(json.loads, path.read_text().splitlines()))}
+    episodes = [done[s] for s in seeds if s in done]
+    log = open(path, "a" if resume else "w")
     try:
         for i, seed in enumerate(tqdm(seeds, desc="composed episodes", unit="episode", disable=not progress)):
+            if seed in done:
+                continue
             video = VideoWriter(world.camera) if i < videos else None
             result = compose_episode(env, library, world, config, seed, on_frame=video)
             episodes.append(result)
@@ -59,6 +88,7 @@ def run_composition(env, library: dict, world: GearWorldModel, config: ComposeCo
                 video.save(out / f"composed_seed{seed}.mp4", int(env.unwrapped.control_freq))
     finally:
         log.close()
+    episodes.sort(key=lambda e: seeds.index(e.seed))
     (out / "summary.md").write_text(summary(episodes, config))
     return episodes
 

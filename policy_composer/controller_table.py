@@ -105,6 +105,29 @@ def evaluate_kind(env, controllers: dict[str, object], trials: int, first_seed: 
     return row
 
 
+def evaluate_table(kinds: list[str], sources, trials: int, first_seed: int = 0, resolution: int = 128,
+                   clearance_mm: float = 2.0, progress: bool = True) -> dict[str, dict[str, Cell]]:
+    """Rows of Table I for `kinds` (MP, DMP, CNN): each kind's controllers in an env with the cameras they need."""
+    import torch
+    from tqdm import tqdm
+
+    from policies.library import build_library, cameras_needed, names_of_kind
+    from policy_composer.rollout import make_env
+
+    torch.set_num_threads(1)
+    rows = {}
+    for kind in kinds:
+        names = names_of_kind(kind)
+        cameras = cameras_needed(names, sources)
+        env = make_env("rgb" if cameras else "state_dict", resolution, clearance_mm, cameras or None)
+        controllers = {c.subtask.name: c for c in build_library(env, names, sources).values()}
+        columns = len(controllers) + (len(controllers) == 3)  # the full task needs all three subtasks
+        with tqdm(total=columns * trials, desc=f"{kind} controllers", unit="trial", disable=not progress) as bar:
+            rows[kind] = evaluate_kind(env, controllers, trials, first_seed, on_trial=bar.update)
+        env.close()
+    return rows
+
+
 def write_table(rows: dict[str, dict[str, Cell]], out: Path, notes: dict[str, str] | None = None) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     with open(out / "controllers.csv", "w", newline="") as f:

@@ -260,6 +260,16 @@ def plot_heatmap(mean: np.ndarray, levels: tuple[float, ...], path: Path, dyn_no
 
 
 # --------------------------------------------------------------------------- report
+def run_experiments(out: Path, episodes_19: int = 1000, episodes_100: int = 100,
+                    noise_units: tuple[str, ...] = ("lookahead", "step"), seed: int = 0,
+                    levels: tuple[float, ...] = LEVELS) -> tuple[dict, dict[str, dict]]:
+    """Both experiments and their report (mdp_report.md); returns the 19-state summary and each heatmap's."""
+    s19 = experiment_19(out, episodes=episodes_19, seed=seed)
+    heatmaps = {unit: heatmap_100(out, levels, episodes_100, seed, dyn_noise_unit=unit) for unit in noise_units}
+    write_report(out, s19, heatmaps)
+    return s19, heatmaps
+
+
 def write_report(out: Path, s19: dict, heatmaps: dict[str, dict]) -> Path:
     """mdp_report.md: our figures beside the paper's, and a verdict on each of its claims."""
     def yes(b: bool) -> str:

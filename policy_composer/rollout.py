@@ -22,6 +22,19 @@ class Policy(Protocol):
     def done(self) -> bool: ...
 
 
+def make_env(obs_mode: str, resolution: int = 128, clearance_mm: float = 2.0, cameras: tuple[str, ...] | None = None,
+             **kwargs):
+    """GearAssembly-v1 with square cameras of `resolution` pixels (all three unless `cameras` names some)."""
+    import gymnasium as gym
+
+    import tasks  # noqa: F401  (registers GearAssembly-v1)
+
+    if cameras is not None:
+        kwargs["cameras"] = tuple(cameras)
+    return gym.make("GearAssembly-v1", obs_mode=obs_mode, camera_width=resolution, camera_height=resolution,
+                    clearance=clearance_mm / 1000.0, **kwargs)
+
+
 @dataclass
 class EpisodeResult:
     seed: int

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # One-shot, idempotent setup for policy-composer on a fresh Debian bookworm machine (run as root).
 #  1. System packages: Mesa >= 24.3 (lavapipe, SAPIEN's CPU Vulkan renderer) from bookworm-backports,
-#     FFmpeg libraries (torchcodec decoding of LeRobot videos).
+#     FFmpeg libraries (torchcodec decoding of LeRobot videos), Chromium (the report's headless-browser test).
 #  2. Python: a virtual environment in .venv with the pinned packages and the project (editable).
 # A second run checks stamps and finishes in seconds.
 set -euo pipefail
@@ -22,6 +22,7 @@ system_packages() {
   local need=()
   mesa_ok || need+=(mesa)
   dpkg-query -W -f='${Status}' ffmpeg 2>/dev/null | grep -q "ok installed" || need+=(ffmpeg)
+  dpkg-query -W -f='${Status}' chromium 2>/dev/null | grep -q "ok installed" || need+=(chromium)
   if [ ${#need[@]} -eq 0 ]; then log "system packages present"; return; fi
   if [ "$(id -u)" != 0 ]; then
     echo "setup: system packages missing (${need[*]}); run this script as root" >&2; exit 1
@@ -45,7 +46,7 @@ SRC
   export DEBIAN_FRONTEND=noninteractive
   apt-get update -qq
   apt-get install -y -qq -t bookworm-backports mesa-vulkan-drivers libvulkan1 >/dev/null
-  apt-get install -y -qq ffmpeg >/dev/null
+  apt-get install -y -qq ffmpeg chromium >/dev/null
   mesa_ok || { echo "setup: mesa-vulkan-drivers >= 24.3 did not install" >&2; exit 1; }
 }
 

@@ -2,18 +2,21 @@
 
 At each decision it scores every controller whose initiation set holds the current state, runs the best one,
 and decides again when it terminates (succeeded, failed, or stopped for safety) and, optionally, every
-`reselect_every` control steps; a controller that has just succeeded is left out of the next decision. The
-episode ends when no controller may start (the task is done, or nothing applies) or at `max_steps`.
+`reselect_every` control steps. `Eligibility` leaves out a controller that has just succeeded and one that has
+failed `max_failures` times since the last success. The episode ends when no controller may start (the task is
+done, or nothing applies) or at `max_steps`.
 """
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import asdict, dataclass, field
 from typing import Callable
 
 import torch
 
 from policies.base import Controller
+from policies.planning import PlanningError
 from selector.world_model import GearWorldModel
 
 
@@ -23,6 +26,7 @@ class ComposeConfig:
     samples: int = 16  # K: sampled rollouts per controller
     reselect_every: int | None = None  # also decide again every this many control steps; None: only at termination
     max_steps: int = 900  # control steps per episode
+    max_failures: int = 2  # a controller that failed this often since the last success is not chosen again
 
 
 @dataclass
@@ -50,6 +54,37 @@ class ComposedEpisode:
     def to_dict(self) -> dict:
         return {**asdict(self), "sequence": self.sequence}
 
+    @classmethod
+    def from_dict(cls, d: dict) -> "ComposedEpisode":
+        return cls(d["seed"], d["success"], d["steps"], d["knocked_out"], [Activation(**a) for a in d["activations"]],
+                   d["decisions"])
+
+
+class Eligibility:
+    """Which controllers may be chosen besides their initiation sets, from what the episode has seen so far.
+
+    A controller that has just succeeded sits out the next decision: its subtask is done, and where the next
+    subtask's initiation set and its own overlap (a gear at the edge of the pre-insertion pose) re-running it would
+    only repeat itself. A controller that has failed `max_failures` times since the last success is dropped until
+    another controller succeeds: its dynamics model keeps predicting a success the world does not give, and
+    without this the selector retries it until the episode runs out (a move that cannot reach the pose).
+    """
+
+    def __init__(self, max_failures: int):
+        self.max_failures = max_failures
+        self.just_done: str | None = None
+        self.failures: Counter[str] = Counter()
+
+    def record(self, activation: Activation) -> None:
+        self.just_done = activation.controller if activation.outcome == "done" else None
+        if activation.outcome == "done":
+            self.failures.clear()
+        elif activation.outcome != "preempted":
+            self.failures[activation.controller] += 1
+
+    def allows(self, name: str) -> bool:
+        return name != self.just_done and self.failures[name] < self.max_failures
+
 
 FrameHook = Callable[[dict, str, float], None]  # (observation, running controller, goal score now)
 
@@ -67,31 +102,42 @@ def compose_episode(env, library: dict[str, Controller], world: GearWorldModel, 
     result = ComposedEpisode(seed)
     running: Controller | None = None
     current: Activation | None = None
+    eligibility = Eligibility(config.max_failures)
+
+    def choose(step: int) -> Controller | None:
+        """Decide and start the chosen controller; one that cannot even start (no plan) fails on the spot."""
+        while True:
+            applicable = torch.tensor([[library[n].can_start(obs) and eligibility.allows(n) for n in names]])
+            if not applicable.any():
+                return None
+            decision = selector.decide(world.encode(obs), applicable)
+            result.decisions.append({"step": step, **decision.log(0)})
+            chosen = library[decision.chosen(0)]
+            result.activations.append(Activation(chosen.name, step))
+            try:
+                chosen.start(obs, seed=seed * 1000 + step)
+                return chosen
+            except PlanningError as e:
+                result.activations[-1].outcome, result.activations[-1].reason = "failed", f"no plan: {e}"
+                eligibility.record(result.activations[-1])
+
     for step in range(config.max_steps):
         due = running is not None and config.reselect_every and current.steps >= config.reselect_every
         if running is None or running.done(obs) or due:
             if current is not None:
                 current.outcome = running.outcome.value if running.done(obs) else "preempted"
                 current.reason = getattr(running, "reason", "")
-            # A controller that has just succeeded is not chosen again at once: its subtask is done, and where
-            # the next subtask's initiation set and its own overlap (a gear at the edge of the pre-insertion
-            # pose), re-running it would only repeat itself.
-            just_done = running.name if running is not None and running.outcome.value == "done" else None
-            applicable = torch.tensor([[library[n].can_start(obs) and n != just_done for n in names]])
-            if not applicable.any():
+                eligibility.record(current)
+            running = choose(step)
+            if running is None:
                 break
-            decision = selector.decide(world.encode(obs), applicable)
-            result.decisions.append({"step": step, **decision.log(0)})
-            running = library[decision.chosen(0)]
-            running.start(obs, seed=seed * 1000 + step)
-            current = Activation(running.name, step)
-            result.activations.append(current)
+            current = result.activations[-1]
         obs, *_ = env.step(u.flat_to_dict_action(running.act(obs)))
         current.steps += 1
         result.steps = step + 1
         if on_frame is not None:
             on_frame(obs, running.name, world.score_observation(obs))
-    if current is not None and current.outcome == "running":
+    if running is not None and current.outcome == "running":
         current.outcome = running.outcome.value if running.done(obs) else "cut off at max_steps"
         current.reason = getattr(running, "reason", "")
     result.success = bool(u.evaluate()["success"][0])

@@ -16,7 +16,7 @@ import pytest
 import torch
 
 import tasks  # noqa: F401
-from policies.library import LibraryError, LibrarySources
+from policies.library import LeRobotSource, LibraryError, LibrarySources
 from policy_composer.recording import journal
 from policy_composer.recording.catalog import HubUnreachable, drop_controller, push_dataset, summarize
 from policy_composer.recording.features import DatasetError, open_dataset
@@ -169,6 +169,21 @@ def test_controller_rollouts_name_their_controller(controller_rollouts):
     assert summarize(root)["outcomes"] == {"mp_pick": {"done": 1}, "mp_insert": {"done": 1}}
     stages = np.array(ds.hf_dataset["stage"]).ravel()
     assert stages[0] == 0 and stages[-1] == 3  # the pick starts on the table; the insertion ends seated
+
+
+def test_a_lerobot_policys_rollouts_record_with_the_cameras_it_reads(act_checkpoint, tmp_path):
+    """A LeRobot policy gets its dynamics model's data like the library's own controllers."""
+    checkpoint, _ = act_checkpoint
+    recipe = replace(load_recipe("gear-controller-rollouts"), controllers=("lerobot_insert",))
+    root = tmp_path / "rollouts"
+    record_recipe(recipe, root, episodes=1, seed=1, settings=EnvSettings(resolution=32), progress=False,
+                  sources=LibrarySources(lerobot=(LeRobotSource(str(checkpoint), "insert"),)))
+    sidecar = json.loads((root / "meta" / "policy_composer.json").read_text())
+    assert sidecar["controllers"] == ["lerobot_insert"] and len(sidecar["episodes"]) == 1
+    assert sidecar["episodes"][0]["outcome"] in ("done", "failed", "stopped for safety")
+    act_cameras = [k for k in json.loads((checkpoint / "config.json").read_text())["input_features"]
+                   if k.startswith("observation.images.")]
+    assert set(act_cameras) <= set(open_dataset(root).meta.camera_keys)  # right_forearm too, beyond the recipe's
 
 
 def test_dropping_a_controllers_rollouts_keeps_the_others(controller_rollouts, tmp_path):

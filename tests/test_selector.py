@@ -14,7 +14,7 @@ from policies.library import LibrarySources, build_library
 from policy_composer.checkpoint import CheckpointError
 from policy_composer.recording.features import image_key
 from policy_composer.recording.frames import load_frames
-from selector.compose import ComposeConfig, compose_episode
+from selector.compose import Activation, ComposeConfig, Eligibility, compose_episode
 from selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
 from selector.dynamics import load_dynamics, transition_pairs
 from selector.evaluate import evaluate_goal_scores
@@ -75,6 +75,21 @@ def test_mismatched_checkpoints_are_refused(world, tmp_path):
         GearWorldModel(model.vae, model.dynamics, model.goal)
     with pytest.raises(CheckpointError, match="holds a VAEConfig checkpoint, not a dynamics model"):
         load_dynamics(root / "vae")
+
+
+def test_a_failing_controller_is_dropped_until_another_succeeds():
+    """Seed 7 of the 10-trial run: a move that cannot reach the pre-insertion pose was retried until max_steps."""
+    eligibility = Eligibility(max_failures=2)
+    eligibility.record(Activation("mp_pick", 0, outcome="done"))
+    assert not eligibility.allows("mp_pick") and eligibility.allows("dmp_move")  # just succeeded: sits out once
+    eligibility.record(Activation("dmp_move", 80, outcome="failed"))
+    assert eligibility.allows("dmp_move") and eligibility.allows("mp_pick")
+    eligibility.record(Activation("dmp_move", 120, outcome="stopped for safety"))
+    assert not eligibility.allows("dmp_move") and eligibility.allows("mp_move")
+    eligibility.record(Activation("mp_move", 160, outcome="preempted"))  # re-decided, not a failure
+    assert eligibility.allows("mp_move")
+    eligibility.record(Activation("mp_move", 200, outcome="done"))
+    assert eligibility.allows("dmp_move") and not eligibility.allows("mp_move")
 
 
 def test_a_composed_episode_runs_end_to_end(world):

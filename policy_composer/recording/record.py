@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
-from policies.library import LibrarySources, build_library
+from policies.library import LibrarySources, build_library, cameras_needed
 from policy_composer.recording import journal
 from policy_composer.recording.features import read_sidecar
 from policy_composer.recording.recipes import Recipe, RecipeError
@@ -23,12 +23,9 @@ class EnvSettings:
 
 
 def make_recording_env(settings: EnvSettings):
-    import gymnasium as gym
+    from policy_composer.rollout import make_env
 
-    import tasks  # noqa: F401  (registers GearAssembly-v1)
-
-    return gym.make("GearAssembly-v1", obs_mode="rgb", camera_width=settings.resolution, cameras=settings.cameras,
-                    camera_height=settings.resolution, clearance=settings.clearance_mm / 1000.0)
+    return make_env("rgb", settings.resolution, settings.clearance_mm, settings.cameras)
 
 
 def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None, seed: int = 0, resume: bool = False,
@@ -58,8 +55,9 @@ def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None,
         settings = EnvSettings(**previous["env"])
         seed = previous["next_seed"]
     settings = settings or EnvSettings()
-    if not previous:
-        settings = replace(settings, cameras=recipe.cameras)
+    if not previous:  # the recipe's cameras, and any others its controllers read
+        needed = cameras_needed(recipe.controllers, sources or LibrarySources()) if recipe.driver == "controllers" else ()
+        settings = replace(settings, cameras=tuple(dict.fromkeys((*recipe.cameras, *needed))))
     env = make_recording_env(settings)
     recorder = LeRobotRecorder(env, root, task=recipe.task, resume=resume,
                                metadata={"recipe": recipe.name, "env": asdict(settings),

@@ -1,0 +1,227 @@
+"""`policy-composer demo`: the paper reproduced end to end, as stages of the pipeline runner.
+
+record the demo sets -> fit the DMPs, train the CNN policy -> record the controllers' rollouts -> train the VAE,
+the dynamics models and the goal scorers -> evaluate the goal scores and the controllers (Table I) -> compose the
+library with the selector (and recover from a knock-out) -> the random-walk MDP experiments -> the report.
+
+A profile says how big each stage is: `quick` fits in 30 minutes on a 2-core CPU, `paper` uses the paper's sizes,
+`smoke` is the smallest that runs every stage (for tests: its figures mean nothing).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+from policy_composer.pipeline import Stage, StageRecord, run_stages
+
+CAMERAS = ("head", "left_forearm", "right_forearm")
+
+
+@dataclass(frozen=True)
+class Profile:
+    name: str
+    resolution: int  # recorded camera images, pixels square
+    image_size: int  # what the models see
+    insertion_demos: int  # paper: 50
+    full_task_demos: int  # training plus held-out
+    train_demos: int  # paper: 5
+    dmp_episodes: int  # planner episodes the DMPs are fitted to
+    rollouts: int  # per controller, for its dynamics model
+    cnn_epochs: int  # paper: 200
+    vae_epochs: int
+    dynamics_epochs: int
+    goal_epochs: int
+    table_trials: int  # per Table I cell (paper: 10)
+    compose_episodes: int  # the first 10 are Table I's composed row; all of them the success rate over seeds
+    knockout_episodes: int
+    mdp_episodes_19: int
+    mdp_episodes_100: int  # per heatmap cell
+    mdp_levels: tuple[float, ...] | None = None  # noise levels of the heatmap (None: the full grid, 0 to 0.8)
+    mixtures: int = 24  # paper: 24
+    horizon: int = 10  # paper: n = 10
+    samples: int = 16
+    holds: str = ""  # which results this size supports
+
+
+PROFILES = {
+    "quick": Profile("quick", resolution=64, image_size=64, insertion_demos=20, full_task_demos=7, train_demos=5,
+                     dmp_episodes=5, rollouts=4, cnn_epochs=80, vae_epochs=15, dynamics_epochs=30, goal_epochs=30,
+                     table_trials=3, compose_episodes=10, knockout_episodes=3, mdp_episodes_19=1000,
+                     mdp_episodes_100=30,
+                     holds="The MDP experiments, the MP row of Table I and the goal-score comparison between cameras "
+                           "hold at this size (the MP row needs no training; the MDP runs 1000 and 30x81 episodes). "
+                           "The CNN policy (20 demonstrations, 80 epochs) and the world model (4 rollouts per "
+                           "controller) are far below the paper's sizes, and Table I's cells have 3 trials, so the "
+                           "CNN and composed rows show that the pipeline works, not how well: run `--profile paper` "
+                           "for those."),
+    "paper": Profile("paper", resolution=128, image_size=64, insertion_demos=50, full_task_demos=8, train_demos=5,
+                     dmp_episodes=5, rollouts=20, cnn_epochs=200, vae_epochs=30, dynamics_epochs=60, goal_epochs=60,
+                     table_trials=10, compose_episodes=50, knockout_episodes=10, mdp_episodes_19=1000,
+                     mdp_episodes_100=100,
+                     holds="The paper's sizes: 50 insertion demonstrations, 5 full-task demonstrations, 200 epochs, "
+                           "24 mixtures, n = 10, 10 trials per Table I cell, and 50 composed seeds."),
+    "smoke": Profile("smoke", resolution=32, image_size=32, insertion_demos=1, full_task_demos=3, train_demos=2,
+                     dmp_episodes=1, rollouts=1, cnn_epochs=2, vae_epochs=2, dynamics_epochs=2, goal_epochs=2,
+                     table_trials=1, compose_episodes=1, knockout_episodes=1, mdp_episodes_19=20, mdp_episodes_100=2,
+                     mdp_levels=(0.0, 0.4, 0.8), mixtures=4, horizon=3, samples=4,
+                     holds="Every stage at the smallest size that runs, to test the pipeline: no figure here means "
+                           "anything."),
+}
+
+
+def stages(p: Profile) -> list[Stage]:
+    """The main job's stages at the sizes of profile `p`."""
+    from policies.cnn.configuration_cnn import CNNPolicyConfig
+    from policy_composer.recording.recipes import load_recipe
+    from selector.compose import ComposeConfig
+    from selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
+
+    insertion = load_recipe("gear-insertion-demos")
+    full_task = replace(load_recipe("gear-full-task-demos"), train_episodes=p.train_demos)
+    rollouts = load_recipe("gear-controller-rollouts")
+    cnn = CNNPolicyConfig(epochs=p.cnn_epochs, num_mixtures=p.mixtures, image_size=p.image_size)
+    vae = VAEConfig(epochs=p.vae_epochs, image_size=p.image_size)
+    dynamics = DynamicsConfig(epochs=p.dynamics_epochs)
+    goal = GoalScoreConfig(epochs=p.goal_epochs, num_mixtures=p.mixtures, image_size=p.image_size)
+    compose = ComposeConfig(horizon=p.horizon, samples=p.samples)
+    env = {"resolution": p.resolution, "clearance_mm": 2.0}
+
+    def record(recipe, episodes):
+        return {"recipe": asdict(recipe), "episodes": episodes, **env}
+
+    return [
+        Stage("insertion-demos", f"record the insertion demonstrations ({p.insertion_demos})", record(insertion, p.insertion_demos),
+              lambda out, _: _record(insertion, out, p.insertion_demos, p.resolution), resumable=True),
+        Stage("full-task-demos", f"record the full-task demonstrations ({p.full_task_demos}, of which "
+              f"{p.train_demos} train the goal scorers)", record(full_task, p.full_task_demos),
+              lambda out, _: _record(full_task, out, p.full_task_demos, p.resolution), resumable=True),
+        Stage("dmp", f"fit the DMPs to the motion planner's episodes ({p.dmp_episodes})", {"episodes": p.dmp_episodes, **env},
+              lambda out, _: _fit_dmp(out, p.dmp_episodes)),
+        Stage("cnn", f"train the CNN policy ({p.cnn_epochs} epochs)", asdict(cnn),
+              lambda out, i: _train_cnn(out, i["insertion-demos"], cnn), inputs=("insertion-demos",)),
+        Stage("controller-rollouts", f"record rollouts of each controller ({p.rollouts} each)", record(rollouts, p.rollouts),
+              lambda out, i: _record(rollouts, out, p.rollouts, p.resolution, _sources(i)), inputs=("dmp", "cnn"),
+              resumable=True),
+        Stage("world-model", "train the VAE, the dynamics models and the goal scorers",
+              {"vae": asdict(vae), "dynamics": asdict(dynamics), "goal": asdict(goal), "cameras": CAMERAS},
+              lambda out, i: _train_world(out, i, vae, dynamics, goal),
+              inputs=("controller-rollouts", "full-task-demos")),
+        Stage("goal-score", "evaluate the goal score of each camera on the held-out demonstrations", {"cameras": CAMERAS},
+              lambda out, i: _evaluate_goal(out, i), inputs=("world-model", "full-task-demos")),
+        Stage("table", f"Table I: each controller kind on each subtask ({p.table_trials} per cell)",
+              {"trials": p.table_trials, "kinds": ("MP", "DMP", "CNN"), **env},
+              lambda out, i: _table(out, i, p), inputs=("dmp", "cnn")),
+        Stage("compose", f"compose the library with the selector (episodes: {p.compose_episodes})",
+              {"compose": asdict(compose), "episodes": p.compose_episodes, **env},
+              lambda out, i: _compose(out, i, compose, list(range(p.compose_episodes)), p.resolution, None),
+              inputs=("dmp", "cnn", "world-model"), resumable=True),
+        Stage("knock-out", f"recovery from the gear knocked out of the gripper (episodes: {p.knockout_episodes})",
+              {"compose": asdict(compose), "episodes": p.knockout_episodes, "knock_out_step": 100, **env},
+              lambda out, i: _compose(out, i, compose, list(range(100, 100 + p.knockout_episodes)), p.resolution, 100),
+              inputs=("dmp", "cnn", "world-model"), resumable=True),
+        Stage("mdp", "the random-walk MDP experiments (19 and 100 states)",
+              {"episodes_19": p.mdp_episodes_19, "episodes_100": p.mdp_episodes_100, "levels": p.mdp_levels},
+              lambda out, _: _mdp(out, p)),
+    ]
+
+
+def run_demo(profile: str = "quick", out: str | Path = "results") -> tuple[dict[str, StageRecord], Path]:
+    """Run (or reuse) every stage under `out`/pipeline, then write `out`/report.md and report.html."""
+    from policy_composer.report import write_report
+
+    if profile not in PROFILES:
+        raise ValueError(f"unknown profile {profile!r}: choose one of {', '.join(PROFILES)}")
+    p = PROFILES[profile]
+    out = Path(out)
+    t0 = time.perf_counter()
+    records = run_stages(stages(p), out / "pipeline")
+    report = write_report(out, p, records, time.perf_counter() - t0)
+    return records, report
+
+
+def _record(recipe, out: Path, episodes: int, resolution: int, sources=None) -> dict:
+    from policy_composer.recording.catalog import summarize
+    from policy_composer.recording.record import EnvSettings, record_recipe
+
+    root = out / "dataset"
+    record_recipe(recipe, root, episodes=episodes, resume=(root / "meta").exists(),
+                  settings=EnvSettings(resolution=resolution), sources=sources)
+    s = summarize(root)
+    return {"episodes": s["episodes"], "frames": s["frames"], "outcomes": s["outcomes"]}
+
+
+def _sources(inputs: dict[str, Path]):
+    from policies.library import LibrarySources
+
+    return LibrarySources(dmp=str(inputs["dmp"] / "dmp"), cnn=str(inputs["cnn"] / "cnn_insert"))
+
+
+def _fit_dmp(out: Path, episodes: int) -> dict:
+    from policies.dmp import fit_dmp_library
+    from policy_composer.rollout import make_env
+
+    env = make_env("state_dict")
+    try:
+        fit_dmp_library(env, seeds=list(range(100, 100 + episodes))).save(out / "dmp")
+    finally:
+        env.close()
+    return {"episodes": episodes}
+
+
+def _train_cnn(out: Path, demos: Path, config) -> dict:
+    import torch
+
+    from policies.cnn.train import train_cnn_policy
+
+    torch.set_num_threads(2)
+    t0 = time.perf_counter()
+    _, losses = train_cnn_policy(demos / "dataset", config, out=out / "cnn_insert")
+    return {"timings": {"CNN policy": time.perf_counter() - t0}, "nll": [losses[0], losses[-1]]}
+
+
+def _train_world(out: Path, inputs: dict[str, Path], vae, dynamics, goal) -> dict:
+    import torch
+
+    from selector.train import train_goal_scores, train_world_model
+
+    torch.set_num_threads(2)
+    rollouts, demos = inputs["controller-rollouts"] / "dataset", inputs["full-task-demos"] / "dataset"
+    timings = train_world_model(rollouts, demos, out / "world", vae, dynamics)
+    timings.update(train_goal_scores(demos, out / "world", CAMERAS, goal))
+    return {"timings": timings}
+
+
+def _evaluate_goal(out: Path, inputs: dict[str, Path]) -> dict:
+    from selector.evaluate import evaluate_goal_scores
+
+    metrics = evaluate_goal_scores(inputs["world-model"] / "world", inputs["full-task-demos"] / "dataset", out, CAMERAS)
+    return {"metrics": metrics}
+
+
+def _table(out: Path, inputs: dict[str, Path], p: Profile) -> dict:
+    from policy_composer.controller_table import evaluate_table, write_table
+
+    rows = evaluate_table(["MP", "DMP", "CNN"], _sources(inputs), p.table_trials, 0, p.resolution)
+    write_table(rows, out)
+    return {"rows": {kind: {c: [cell.successes, cell.trials, cell.safety_stops] for c, cell in row.items()}
+                     for kind, row in rows.items()}}
+
+
+def _compose(out: Path, inputs: dict[str, Path], config, seeds: list[int], resolution: int,
+             knock_out_step: int | None) -> dict:
+    from policy_composer.composition import compose_library
+
+    episodes = compose_library(inputs["world-model"] / "world", _sources(inputs), config, seeds, out, videos=1,
+                               resolution=resolution, knock_out_step=knock_out_step, resume=True)
+    return {"successes": [e.success for e in episodes], "knocked_out": [e.knocked_out for e in episodes]}
+
+
+def _mdp(out: Path, p: Profile) -> dict:
+    from policy_composer import mdp
+
+    levels = {"levels": p.mdp_levels} if p.mdp_levels else {}
+    s19, heatmaps = mdp.run_experiments(out, p.mdp_episodes_19, p.mdp_episodes_100, **levels)
+    return {"mean_planning_steps_19": s19["mean_planning_steps"],
+            "heatmap_range": {unit: h["claims"]["range"] for unit, h in heatmaps.items()}}

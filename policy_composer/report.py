@@ -1,0 +1,206 @@
+"""The main job's report: `results/report.md` and `results/report.html` (the same text, figures and video inline),
+each figure beside the paper's, from the outputs the pipeline's stages left in their folders."""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import shutil
+import time
+from collections import Counter
+from importlib import metadata
+from pathlib import Path
+
+from policy_composer.controller_table import PAPER as PAPER_TABLE, SUBTASK_COLUMNS
+from policy_composer.composition import PAPER_COMPOSED
+from policy_composer.pipeline import StageRecord
+
+ASSETS = "report"  # folder beside report.md with the figures and videos it shows
+PAPER_CAMERAS = ("the head camera does not see the fine details of the movement which the forearm cameras do, "
+                 "leading to a closer to goal score")
+
+
+def write_report(out: Path, profile, records: dict[str, StageRecord], wall_seconds: float) -> Path:
+    """Write report.md and report.html in `out`; returns report.md's path."""
+    assets = out / ASSETS
+    if assets.exists():
+        shutil.rmtree(assets)
+    assets.mkdir(parents=True)
+
+    def asset(stage: str, name: str, as_name: str | None = None) -> str | None:
+        src = records[stage].folder / name
+        if not src.exists():
+            return None
+        shutil.copy(src, assets / (as_name or name))
+        return f"{ASSETS}/{as_name or name}"
+
+    def link(stage: str, name: str) -> str:
+        return os.path.relpath(records[stage].folder / name, out)
+
+    composed = _episodes(records["compose"].folder)
+    knocked = _episodes(records["knock-out"].folder)
+    sections = [
+        _header(profile, records, wall_seconds),
+        _table_one(records, composed, knocked, link),
+        _composition(composed, asset("compose", f"composed_seed{composed[0]['seed']}.mp4", "composed.mp4")
+                     if composed else None,
+                     asset("knock-out", f"composed_seed{knocked[0]['seed']}.mp4", "knock_out.mp4") if knocked else None),
+        _goal_score(records["goal-score"], asset("goal-score", "goal_score.png")),
+        _mdp(records["mdp"], [asset("mdp", f) for f in ("mdp19_solution.png", "mdp100_heatmap_lookahead.png",
+                                                          "mdp100_heatmap_step.png")]),
+        _timings(records, wall_seconds),
+        _machine(),
+    ]
+    md = "\n\n".join(sections) + "\n"
+    path = out / "report.md"
+    path.write_text(md)
+    (out / "report.html").write_text(to_html(md, f"policy-composer report ({profile.name})"))
+    return path
+
+
+def to_html(md: str, title: str) -> str:
+    import markdown
+
+    body = markdown.markdown(md, extensions=["tables"])
+    return f"""<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>{title}</title>
+<style>
+body {{ font-family: system-ui, sans-serif; max-width: 60rem; margin: 2rem auto; padding: 0 1rem; line-height: 1.45; }}
+table {{ border-collapse: collapse; margin: 1rem 0; }} th, td {{ border: 1px solid #bbb; padding: .25rem .6rem; }}
+th {{ background: #f2f2f2; }} img, video {{ max-width: 100%; }} code {{ background: #f4f4f4; padding: 0 .2rem; }}
+</style></head>
+<body>
+{body}
+</body></html>
+"""
+
+
+def _episodes(folder: Path) -> list[dict]:
+    path = folder / "episodes.jsonl"
+    return [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
+
+
+def _header(profile, records: dict[str, StageRecord], wall_seconds: float) -> str:
+    ran = [r for r in records.values() if not r.reused]
+    return "\n".join([
+        "# Composing diverse policies: the paper reproduced on this machine", "",
+        f"Profile `{profile.name}`, written {time.strftime('%Y-%m-%d %H:%M')}. This run took "
+        f"{wall_seconds / 60:.1f} min: {len(ran)} of {len(records)} stages ran, the others were reused from an "
+        f"earlier run with the same settings; all stages together took {sum(r.seconds for r in records.values()) / 60:.1f}"
+        " min when they ran.", "",
+        f"**What holds at this size.** {profile.holds}", "",
+        f"Sizes: {profile.insertion_demos} insertion demonstrations, {profile.train_demos} full-task demonstrations "
+        f"for the goal scorers ({profile.full_task_demos - profile.train_demos} held out), {profile.rollouts} rollouts "
+        f"per controller, CNN {profile.cnn_epochs} epochs, {profile.mixtures} mixtures, selector n = {profile.horizon}, "
+        f"K = {profile.samples}, cameras at {profile.resolution} px (models see {profile.image_size} px)."])
+
+
+def _table_one(records, composed: list[dict], knocked: list[dict], link) -> str:
+    rows = records["table"].facts["rows"]
+
+    def cell(kind: str, column: str) -> str:
+        ok, n, stops = rows[kind][column]
+        return "-" if n == 0 else f"{ok}/{n}" + (f" ({stops}*)" if stops else "")
+
+    lines = ["## Table I: each controller on each subtask", "",
+             "Each cell: ours (paper). `*`: stopped for safety. `-`: not run. Start states, failures: "
+             f"[controllers.md]({link('table', 'controllers.md')}).", "",
+             "| controller | pick | move | insert | full task |", "|---|---|---|---|---|"]
+    for kind in rows:
+        paper = PAPER_TABLE.get(kind, {})
+        lines.append(f"| {kind} | " + " | ".join(f"{cell(kind, c)} ({paper.get(c, '-')})" for c in SUBTASK_COLUMNS) + " |")
+    first = composed[:10]
+    lines.append(f"| composed (selector) | - | - | - | {sum(e['success'] for e in first)}/{len(first)} ({PAPER_COMPOSED}) |")
+    if len(composed) > len(first):
+        lines += ["", f"Composed over {len(composed)} seeds: {sum(e['success'] for e in composed)}/{len(composed)} "
+                      "full-task successes (the paper runs 10)."]
+    hit = [e for e in knocked if e["knocked_out"]]
+    if hit:
+        lines += ["", f"Beyond the paper, recovery: the gear was knocked out of the gripper in {len(hit)} of "
+                      f"{len(knocked)} episodes, and the selector still finished the task in "
+                      f"{sum(e['success'] for e in hit)}/{len(hit)} ([summary]({link('knock-out', 'summary.md')}))."]
+    return "\n".join(lines)
+
+
+def _composition(composed: list[dict], video: str | None, knock_video: str | None) -> str:
+    lines = ["## The selector composing the library", ""]
+    if video:
+        lines += [f'<video src="{video}" controls muted width="512"></video>', "",
+                  f"[Composed rollout, seed {composed[0]['seed']}]({video}): the head camera, the running controller "
+                  "and the goal score of the current image."]
+    if knock_video:
+        lines += ["", f'<video src="{knock_video}" controls muted width="512"></video>', "",
+                  f"[The gear knocked out at step 100]({knock_video}): the selector picks a pick-up again."]
+    sequences = Counter(" -> ".join(e["sequence"]) for e in composed)
+    lines += ["", "| controllers chosen, in order | episodes |", "|---|---|"]
+    lines += [f"| {s or '(none could start)'} | {c} |" for s, c in sequences.most_common()]
+    if composed:
+        e = composed[0]
+        names = sorted(e["decisions"][0]["scores"]) if e["decisions"] else []
+        lines += ["", f"Decision log of seed {e['seed']} ({'success' if e['success'] else 'failure'}): the predicted "
+                      "goal score of each controller after n dynamics steps; `-` outside its initiation set.", "",
+                  "| step | chosen | " + " | ".join(names) + " |", "|---|---|" + "---|" * len(names)]
+        for d in e["decisions"]:
+            scores = [("-" if d["scores"][n] is None else f"{d['scores'][n]:.3f}") for n in names]
+            lines.append(f"| {d['step']} | {d['choice']} | " + " | ".join(scores) + " |")
+    return "\n".join(lines)
+
+
+def _goal_score(record: StageRecord, figure: str | None) -> str:
+    metrics = record.facts["metrics"]
+    ranked = sorted(metrics, key=lambda c: -metrics[c]["spearman"])
+    forearm_best = ranked[0] != "head"
+    lines = ["## Goal score per camera", ""]
+    if figure:
+        lines += [f"![goal score per camera]({figure})", ""]
+    lines += ["| camera | Spearman with true progress | mean abs. error |", "|---|---|---|"]
+    lines += [f"| {c} | {m['spearman']:.3f} | {m['mae']:.3f} |" for c, m in metrics.items()]
+    some = next(iter(metrics.values()))
+    lines += ["", f"On {some['episodes']} held-out demonstrations the {ranked[0]} camera tracks progress best. "
+              f"The paper: \"{PAPER_CAMERAS}\". Ours " + ("agrees: a forearm camera ranks above the head camera."
+                                                         if forearm_best else
+                                                         "disagrees: the head camera ranks first here.")]
+    return "\n".join(lines)
+
+
+def _mdp(record: StageRecord, figures: list[str | None]) -> str:
+    text = (record.folder / "mdp_report.md").read_text().splitlines()
+    body = [("#" + line if line.startswith("#") else line) for line in text[1:]]  # under this report's heading
+    lines = ["## The random-walk MDP", *body, ""]
+    lines += [f"![{Path(f).stem}]({f})" for f in figures if f]
+    return "\n".join(lines)
+
+
+def _timings(records: dict[str, StageRecord], wall_seconds: float) -> str:
+    lines = ["## Timings", "", "| stage | seconds | this run |", "|---|---|---|"]
+    lines += [f"| {r.title} | {r.seconds:.0f} | {'reused' if r.reused else 'ran'} |" for r in records.values()]
+    lines += [f"| **main job, this run** | {wall_seconds:.0f} | |"]
+    models = {what: s for r in records.values() for what, s in r.facts.get("timings", {}).items()}
+    if models:
+        lines += ["", "| model | training seconds |", "|---|---|"] + [f"| {m} | {s:.0f} |" for m, s in models.items()]
+    return "\n".join(lines)
+
+
+def machine_facts() -> dict[str, str]:
+    """The machine and the package versions the figures were measured with."""
+    cpu = platform.processor() or "unknown CPU"
+    try:
+        cpu = next(line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    facts = {"CPU": f"{cpu}, {os.cpu_count()} cores", "OS": platform.platform(), "Python": platform.python_version()}
+    try:
+        facts["memory"] = f"{os.sysconf('SC_PAGE_SIZE') * os.sysconf('SC_PHYS_PAGES') / 2**30:.0f} GiB"
+    except (ValueError, OSError):
+        pass
+    for package in ("torch", "mani-skill", "sapien", "lerobot", "ompl"):
+        try:
+            facts[package] = metadata.version(package)
+        except metadata.PackageNotFoundError:
+            facts[package] = "not installed"
+    return facts
+
+
+def _machine() -> str:
+    return "\n".join(["## Machine", "", "| | |", "|---|---|"] + [f"| {k} | {v} |" for k, v in machine_facts().items()])

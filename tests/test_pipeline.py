@@ -1,0 +1,130 @@
+"""The main job: stages kept under their configuration's key, reused, resumed; `policy-composer demo` end to end,
+and its report rendered with its figures and videos in a real headless browser."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+from html import unescape
+from pathlib import Path
+
+import pytest
+
+from policy_composer.pipeline import MARKER, Stage, run_stages
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _stages(calls: list[str], record_config: dict, fail_train: bool = False) -> list[Stage]:
+    def record(out: Path, _):
+        calls.append("record")
+        done = len(list(out.glob("episode_*")))  # a recording keeps its finished episodes
+        for i in range(done, 3):
+            (out / f"episode_{i}").write_text(str(i))
+        return {"episodes": 3, "recorded_now": 3 - done}
+
+    def train(out: Path, inputs):
+        calls.append("train")
+        assert not any(out.iterdir()), "an unfinished non-resumable stage must start from an empty folder"
+        (out / "partial").write_text("half an epoch")
+        if fail_train:
+            raise KeyboardInterrupt
+        (out / "model").write_text(str(len(list(inputs["record"].glob("episode_*")))))
+        return {"trained_on": int((out / "model").read_text())}
+
+    return [Stage("record", "record", record_config, record, resumable=True),
+            Stage("train", "train", {"epochs": 2}, train, inputs=("record",))]
+
+
+def test_stages_are_reused_resumed_and_rerun_when_their_configuration_changes(tmp_path):
+    calls: list[str] = []
+    with pytest.raises(KeyboardInterrupt):  # interrupted in the second stage
+        run_stages(_stages(calls, {"episodes": 3}, fail_train=True), tmp_path, log=lambda _: None)
+    assert calls == ["record", "train"]
+    record_dir = next(tmp_path.glob("record-*"))
+    assert (record_dir / MARKER).exists() and not any(tmp_path.glob(f"train-*/{MARKER}"))
+
+    records = run_stages(_stages(calls, {"episodes": 3}), tmp_path, log=lambda _: None)  # resumes at "train"
+    assert calls == ["record", "train", "train"]
+    assert records["record"].reused and not records["train"].reused
+    assert records["train"].facts == {"trained_on": 3}
+    assert json.loads((records["train"].folder / MARKER).read_text())["inputs"] == {"record": records["record"].key}
+
+    again = run_stages(_stages(calls, {"episodes": 3}), tmp_path, log=lambda _: None)  # everything reused
+    assert calls == ["record", "train", "train"] and all(r.reused for r in again.values())
+    assert again["train"].facts == {"trained_on": 3}
+
+    changed = run_stages(_stages(calls, {"episodes": 3, "resolution": 64}), tmp_path, log=lambda _: None)
+    assert calls[3:] == ["record", "train"]  # a new recording key re-runs everything downstream of it
+    assert changed["train"].key != records["train"].key
+    assert records["train"].folder.exists() and changed["train"].folder.exists()  # old outputs kept
+
+
+def test_an_interrupted_recording_stage_keeps_its_episodes(tmp_path):
+    calls: list[str] = []
+    stage = _stages(calls, {"episodes": 3})[0]
+    folder = tmp_path / "partial"
+    run = stage.run
+
+    def interrupted(out: Path, inputs):
+        (out / "episode_0").write_text("0")
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_stages([Stage(stage.name, stage.title, stage.config, interrupted, resumable=True)], folder,
+                   log=lambda _: None)
+    records = run_stages([Stage(stage.name, stage.title, stage.config, run, resumable=True)], folder, log=lambda _: None)
+    assert records["record"].facts == {"episodes": 3, "recorded_now": 2}
+
+
+def test_a_stage_reading_a_missing_stage_is_refused(tmp_path):
+    with pytest.raises(ValueError, match="reads \\['record'\\]"):
+        run_stages([Stage("train", "train", {}, lambda out, i: {}, inputs=("record",))], tmp_path)
+
+
+def _browser_check(html: Path) -> dict:
+    """Open `html` in headless Chromium; return each image's natural width and each video's ready state."""
+    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+    assert chromium, "Chromium is not installed: run scripts/setup.sh"
+    probe = html.with_name("_probe.html")
+    probe.write_text(html.read_text().replace("</body>", """<script>
+window.addEventListener('load', () => setTimeout(() => {
+  const images = [...document.images].map(i => [i.getAttribute('src'), i.naturalWidth]);
+  const videos = [...document.querySelectorAll('video')].map(v => [v.getAttribute('src'), v.readyState, v.videoWidth]);
+  document.body.setAttribute('data-probe', JSON.stringify({images, videos}));
+}, 1000));
+</script></body>"""))
+    out = subprocess.run([chromium, "--headless", "--no-sandbox", "--disable-gpu", "--virtual-time-budget=10000",
+                          "--dump-dom", probe.as_uri()], capture_output=True, text=True, timeout=120)
+    probe.unlink()
+    found = re.search(r'data-probe="([^"]*)"', out.stdout)
+    assert found, f"the page did not load in Chromium: {out.stderr[-2000:]}"
+    return json.loads(unescape(found.group(1)))
+
+
+def test_the_main_job_runs_every_stage_reuses_them_and_writes_a_report_a_browser_renders(tmp_path):
+    exe = Path(sys.executable).parent / "policy-composer"
+    env = {**os.environ, "HF_HUB_OFFLINE": "1"}
+    cmd = [str(exe), "demo", "--profile", "smoke", "--out", str(tmp_path)]
+    first = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=env, timeout=1200)
+    assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
+    second = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=env, timeout=600)
+    assert second.returncode == 0, second.stderr[-3000:]
+    stage_lines = [line for line in second.stdout.splitlines() if line.startswith("[")]
+    assert len(stage_lines) == 11 and all(": reused " in line for line in stage_lines), second.stdout
+
+    report = (tmp_path / "report.md").read_text()
+    for row in ("| MP |", "| DMP |", "| CNN |", "| composed (selector) |", "| head |", "| left_forearm |",
+                "| right_forearm |", "planning steps to the goal", "| step | chosen |", "## Machine"):
+        assert row in report, f"{row!r} missing from the report"
+    assert "0 of 11 stages ran" in report
+
+    probe = _browser_check(tmp_path / "report.html")
+    images = dict(probe["images"])
+    assert {"report/goal_score.png", "report/mdp19_solution.png", "report/mdp100_heatmap_lookahead.png"} <= set(images)
+    assert all(width > 0 for width in images.values()), f"figures that did not render: {images}"
+    assert probe["videos"] and all(state >= 1 and width > 0 for _, state, width in probe["videos"]), probe["videos"]
