@@ -26,13 +26,13 @@ BENCHMARKS = [("env steps/s", ["env_speed.py"]),
               ("selector latency and training times", ["selector_speed.py"])]
 
 
-def run(label: str, cmd: list[str]) -> float:
+def run(label: str, cmd: list[str], echo: bool = True) -> float:
     """Run one benchmark, echoing its figure lines under `label`; returns its wall time."""
     print(f"== {label}: {' '.join(Path(c).name if c.endswith('.py') else c for c in cmd)}", flush=True)
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, cwd=HERE.parent, capture_output=True, text=True,
                           env={**os.environ, "HF_HUB_OFFLINE": "1"})
-    for line in proc.stdout.splitlines():
+    for line in proc.stdout.splitlines() if echo else ():
         print(f"   {line}", flush=True)
     if proc.returncode != 0:
         print(f"   FAILED (exit {proc.returncode}): {proc.stderr.strip().splitlines()[-1:]}", flush=True)
@@ -51,7 +51,7 @@ def main() -> int:
     exe = Path(sys.executable).parent / "policy-composer"
     with tempfile.TemporaryDirectory() as out:
         wall = run(f"main job, profile {args.main_job_profile}, from scratch",
-                   [str(exe), "demo", "--profile", args.main_job_profile, "--out", out])
+                   [str(exe), "demo", "--profile", args.main_job_profile, "--out", out], echo=False)
         print(f"   main job wall time ({args.main_job_profile}): {wall:.0f} s", flush=True)
         for marker in sorted(Path(out, "pipeline").glob("*/stage.json"), key=os.path.getmtime):
             stage = json.loads(marker.read_text())

@@ -10,6 +10,7 @@ A profile says how big each stage is: `quick` fits in 30 minutes on a 2-core CPU
 
 from __future__ import annotations
 
+import shutil
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -146,8 +147,11 @@ def _record(recipe, out: Path, episodes: int, resolution: int, sources=None) -> 
     from policy_composer.recording.record import EnvSettings, record_recipe
 
     root = out / "dataset"
-    record_recipe(recipe, root, episodes=episodes, resume=(root / "meta").exists(),
-                  settings=EnvSettings(resolution=resolution), sources=sources)
+    resume = (root / "meta" / "info.json").exists()
+    if root.exists() and not resume:  # interrupted before its first episode was saved
+        shutil.rmtree(root)
+    record_recipe(recipe, root, episodes=episodes, resume=resume, settings=EnvSettings(resolution=resolution),
+                  sources=sources)
     s = summarize(root)
     return {"episodes": s["episodes"], "frames": s["frames"], "outcomes": s["outcomes"]}
 

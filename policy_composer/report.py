@@ -86,9 +86,10 @@ def _header(profile, records: dict[str, StageRecord], wall_seconds: float) -> st
     return "\n".join([
         "# Composing diverse policies: the paper reproduced on this machine", "",
         f"Profile `{profile.name}`, written {time.strftime('%Y-%m-%d %H:%M')}. This run took "
-        f"{wall_seconds / 60:.1f} min: {len(ran)} of {len(records)} stages ran, the others were reused from an "
-        f"earlier run with the same settings; all stages together took {sum(r.seconds for r in records.values()) / 60:.1f}"
-        " min when they ran.", "",
+        f"{wall_seconds / 60:.1f} min: {len(ran)} of {len(records)} stages ran"
+        + (", the others were reused from an earlier run with the same settings; all stages together took "
+           f"{sum(r.seconds for r in records.values()) / 60:.1f} min when they ran." if len(ran) < len(records) else "."),
+        "",
         f"**What holds at this size.** {profile.holds}", "",
         f"Sizes: {profile.insertion_demos} insertion demonstrations, {profile.train_demos} full-task demonstrations "
         f"for the goal scorers ({profile.full_task_demos - profile.train_demos} held out), {profile.rollouts} rollouts "
@@ -126,11 +127,11 @@ def _table_one(records, composed: list[dict], knocked: list[dict], link) -> str:
 def _composition(composed: list[dict], video: str | None, knock_video: str | None) -> str:
     lines = ["## The selector composing the library", ""]
     if video:
-        lines += [f'<video src="{video}" controls muted width="512"></video>', "",
+        lines += [f'<video src="{video}" controls muted preload="metadata" width="512"></video>', "",
                   f"[Composed rollout, seed {composed[0]['seed']}]({video}): the head camera, the running controller "
                   "and the goal score of the current image."]
     if knock_video:
-        lines += ["", f'<video src="{knock_video}" controls muted width="512"></video>', "",
+        lines += ["", f'<video src="{knock_video}" controls muted preload="metadata" width="512"></video>', "",
                   f"[The gear knocked out at step 100]({knock_video}): the selector picks a pick-up again."]
     sequences = Counter(" -> ".join(e["sequence"]) for e in composed)
     lines += ["", "| controllers chosen, in order | episodes |", "|---|---|"]
