@@ -78,6 +78,7 @@ def stages(p: Profile) -> list[Stage]:
     from policy_composer.recording.recipes import load_recipe
     from selector.compose import ComposeConfig
     from selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
+    from tasks.gear_assembly import TASK_REVISION
 
     insertion = load_recipe("gear-insertion-demos")
     full_task = replace(load_recipe("gear-full-task-demos"), train_episodes=p.train_demos)
@@ -87,7 +88,7 @@ def stages(p: Profile) -> list[Stage]:
     dynamics = DynamicsConfig(epochs=p.dynamics_epochs)
     goal = GoalScoreConfig(epochs=p.goal_epochs, num_mixtures=p.mixtures, image_size=p.image_size)
     compose = ComposeConfig(horizon=p.horizon, samples=p.samples)
-    env = {"resolution": p.resolution, "clearance_mm": 2.0}
+    env = {"resolution": p.resolution, "clearance_mm": 2.0, "task_revision": TASK_REVISION}
 
     def record(recipe, episodes):
         return {"recipe": asdict(recipe), "episodes": episodes, **env}
