@@ -26,7 +26,12 @@ def cmd_demo(args: argparse.Namespace) -> int:
     """The main job: the whole paper, stage by stage (finished stages are reused), then the report."""
     from policy_composer.demo import run_demo
 
-    records, report = run_demo(args.profile, args.out)
+    try:
+        _, report = run_demo(args.profile, args.out)
+    except KeyboardInterrupt:
+        print(f"\ninterrupted: finished stages (and the episodes of an unfinished recording or composed run) are kept "
+              f"in {Path(args.out) / 'pipeline'}; run the same command again to resume", file=sys.stderr)
+        return 130
     print(f"report: {report} and {report.with_suffix('.html')} (open it in a browser)")
     return 0
 

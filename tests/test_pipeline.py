@@ -7,8 +7,10 @@ import json
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
+import time
 from html import unescape
 from pathlib import Path
 
@@ -106,12 +108,37 @@ window.addEventListener('load', () => setTimeout(() => {
     return json.loads(unescape(found.group(1)))
 
 
+def _interrupt_once_a_full_task_demo_is_saved(cmd: list[str], env: dict, out: Path) -> subprocess.CompletedProcess:
+    """Start the main job, Ctrl-C it once its full-task recording has saved an episode; its exit code and output."""
+    proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # as in a terminal
+    t0 = time.time()
+    while time.time() - t0 < 600:
+        sidecars = list(out.glob("pipeline/full-task-demos-*/dataset/meta/policy_composer.json"))
+        try:
+            if sidecars and json.loads(sidecars[0].read_text())["episodes"]:
+                break
+        except json.JSONDecodeError:
+            pass
+        assert proc.poll() is None, proc.stderr.read()
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=300)
+    return subprocess.CompletedProcess(cmd, proc.returncode, stdout, stderr)
+
+
 def test_the_main_job_runs_every_stage_reuses_them_and_writes_a_report_a_browser_renders(tmp_path):
     exe = Path(sys.executable).parent / "policy-composer"
     env = {**os.environ, "HF_HUB_OFFLINE": "1"}
     cmd = [str(exe), "demo", "--profile", "smoke", "--out", str(tmp_path)]
+    interrupted = _interrupt_once_a_full_task_demo_is_saved(cmd, env, tmp_path)
+    assert interrupted.returncode == 130 and "run the same command again to resume" in interrupted.stderr, \
+        interrupted.stderr[-3000:]
     first = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=env, timeout=1200)
     assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
+    resumed = [line for line in first.stdout.splitlines() if line.startswith("[")]
+    assert ": reused " in resumed[0]  # the insertion demos, finished before the interrupt
+    assert resumed[1].startswith("[2/11] record the full-task") and resumed[1].endswith("(resuming)"), resumed[1]
     second = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=env, timeout=600)
     assert second.returncode == 0, second.stderr[-3000:]
     stage_lines = [line for line in second.stdout.splitlines() if line.startswith("[")]
