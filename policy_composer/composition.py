@@ -70,9 +70,7 @@ def run_composition(env, library: dict, world: GearWorldModel, config: ComposeCo
 
     out.mkdir(parents=True, exist_ok=True)
     path = out / "episodes.jsonl"
-    done = {}
-    if resume and path.exists():
-        done = {e.seed: e for e in map(ComposedEpisode.from_dict, map(json.loads, path.read_text().splitlines()))}
+    done = {e.seed: e for e in load_episodes(out)} if resume else {}
     episodes = [done[s] for s in seeds if s in done]
     log = open(path, "a" if resume else "w")
     try:
@@ -93,9 +91,21 @@ def run_composition(env, library: dict, world: GearWorldModel, config: ComposeCo
     return episodes
 
 
+def load_episodes(out: Path) -> list[ComposedEpisode]:
+    """The episodes a composed run wrote to `out`/episodes.jsonl (none if it has not written any)."""
+    path = out / "episodes.jsonl"
+    if not path.exists():
+        return []
+    return [ComposedEpisode.from_dict(json.loads(line)) for line in path.read_text().splitlines()]
+
+
+def sequence_counts(episodes: list[ComposedEpisode]) -> list[tuple[str, int]]:
+    """Each order in which the selector ran controllers, with how many episodes followed it, commonest first."""
+    return Counter(" -> ".join(e.sequence) for e in episodes).most_common()
+
+
 def summary(episodes: list[ComposedEpisode], config: ComposeConfig) -> str:
     n, ok = len(episodes), sum(e.success for e in episodes)
-    sequences = Counter(" -> ".join(e.sequence) for e in episodes)
     lines = ["# Composed controllers (the selector over the whole library)", "",
              f"Horizon n = {config.horizon}, K = {config.samples} samples per controller, decisions at termination"
              + (f" and every {config.reselect_every} steps" if config.reselect_every else "") + ".", "",
@@ -105,7 +115,7 @@ def summary(episodes: list[ComposedEpisode], config: ComposeConfig) -> str:
         lines += [f"Gear knocked out of the gripper in {len(knocked)} episodes; recovered (task still done) in "
                   f"{sum(e.success for e in knocked)}/{len(knocked)}.", ""]
     lines += ["## Controller sequences", "", "| sequence | episodes |", "|---|---|"]
-    lines += [f"| {s} | {c} |" for s, c in sequences.most_common()]
+    lines += [f"| {s} | {c} |" for s, c in sequence_counts(episodes)]
     failed = [e for e in episodes if not e.success]
     if failed:
         lines += ["", "## Failures", ""]

@@ -3,18 +3,17 @@ each figure beside the paper's, from the outputs the pipeline's stages left in t
 
 from __future__ import annotations
 
-import json
 import os
 import platform
 import shutil
 import time
-from collections import Counter
 from importlib import metadata
 from pathlib import Path
 
 from policy_composer.controller_table import PAPER as PAPER_TABLE, SUBTASK_COLUMNS
-from policy_composer.composition import PAPER_COMPOSED
+from policy_composer.composition import PAPER_COMPOSED, load_episodes, sequence_counts
 from policy_composer.pipeline import StageRecord
+from selector.compose import ComposedEpisode
 
 ASSETS = "report"  # folder beside report.md with the figures and videos it shows
 PAPER_CAMERAS = ("the head camera does not see the fine details of the movement which the forearm cameras do, "
@@ -38,14 +37,14 @@ def write_report(out: Path, profile, records: dict[str, StageRecord], wall_secon
     def link(stage: str, name: str) -> str:
         return os.path.relpath(records[stage].folder / name, out)
 
-    composed = _episodes(records["compose"].folder)
-    knocked = _episodes(records["knock-out"].folder)
+    composed = load_episodes(records["compose"].folder)
+    knocked = load_episodes(records["knock-out"].folder)
     sections = [
         _header(profile, records, wall_seconds),
         _table_one(records, composed, knocked, link),
-        _composition(composed, asset("compose", f"composed_seed{composed[0]['seed']}.mp4", "composed.mp4")
+        _composition(composed, asset("compose", f"composed_seed{composed[0].seed}.mp4", "composed.mp4")
                      if composed else None,
-                     asset("knock-out", f"composed_seed{knocked[0]['seed']}.mp4", "knock_out.mp4") if knocked else None),
+                     asset("knock-out", f"composed_seed{knocked[0].seed}.mp4", "knock_out.mp4") if knocked else None),
         _goal_score(records["goal-score"], asset("goal-score", "goal_score.png")),
         _mdp(records["mdp"], [asset("mdp", f) for f in ("mdp19_solution.png", "mdp100_heatmap_lookahead.png",
                                                           "mdp100_heatmap_step.png")]),
@@ -76,11 +75,6 @@ th {{ background: #f2f2f2; }} img, video {{ max-width: 100%; }} code {{ backgrou
 """
 
 
-def _episodes(folder: Path) -> list[dict]:
-    path = folder / "episodes.jsonl"
-    return [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
-
-
 def _header(profile, records: dict[str, StageRecord], wall_seconds: float) -> str:
     ran = [r for r in records.values() if not r.reused]
     return "\n".join([
@@ -97,7 +91,7 @@ def _header(profile, records: dict[str, StageRecord], wall_seconds: float) -> st
         f"K = {profile.samples}, cameras at {profile.resolution} px (models see {profile.image_size} px)."])
 
 
-def _table_one(records, composed: list[dict], knocked: list[dict], link) -> str:
+def _table_one(records, composed: list[ComposedEpisode], knocked: list[ComposedEpisode], link) -> str:
     rows = records["table"].facts["rows"]
 
     def cell(kind: str, column: str) -> str:
@@ -112,37 +106,36 @@ def _table_one(records, composed: list[dict], knocked: list[dict], link) -> str:
         paper = PAPER_TABLE.get(kind, {})
         lines.append(f"| {kind} | " + " | ".join(f"{cell(kind, c)} ({paper.get(c, '-')})" for c in SUBTASK_COLUMNS) + " |")
     first = composed[:10]
-    lines.append(f"| composed (selector) | - | - | - | {sum(e['success'] for e in first)}/{len(first)} ({PAPER_COMPOSED}) |")
+    lines.append(f"| composed (selector) | - | - | - | {sum(e.success for e in first)}/{len(first)} ({PAPER_COMPOSED}) |")
     if len(composed) > len(first):
-        lines += ["", f"Composed over {len(composed)} seeds: {sum(e['success'] for e in composed)}/{len(composed)} "
+        lines += ["", f"Composed over {len(composed)} seeds: {sum(e.success for e in composed)}/{len(composed)} "
                       "full-task successes (the paper runs 10)."]
-    hit = [e for e in knocked if e["knocked_out"]]
+    hit = [e for e in knocked if e.knocked_out]
     if hit:
         lines += ["", f"Beyond the paper, recovery: the gear was knocked out of the gripper in {len(hit)} of "
                       f"{len(knocked)} episodes, and the selector still finished the task in "
-                      f"{sum(e['success'] for e in hit)}/{len(hit)} ([summary]({link('knock-out', 'summary.md')}))."]
+                      f"{sum(e.success for e in hit)}/{len(hit)} ([summary]({link('knock-out', 'summary.md')}))."]
     return "\n".join(lines)
 
 
-def _composition(composed: list[dict], video: str | None, knock_video: str | None) -> str:
+def _composition(composed: list[ComposedEpisode], video: str | None, knock_video: str | None) -> str:
     lines = ["## The selector composing the library", ""]
     if video:
         lines += [f'<video src="{video}" controls muted preload="metadata" width="512"></video>', "",
-                  f"[Composed rollout, seed {composed[0]['seed']}]({video}): the head camera, the running controller "
+                  f"[Composed rollout, seed {composed[0].seed}]({video}): the head camera, the running controller "
                   "and the goal score of the current image."]
     if knock_video:
         lines += ["", f'<video src="{knock_video}" controls muted preload="metadata" width="512"></video>', "",
                   f"[The gear knocked out at step 100]({knock_video}): the selector picks a pick-up again."]
-    sequences = Counter(" -> ".join(e["sequence"]) for e in composed)
     lines += ["", "| controllers chosen, in order | episodes |", "|---|---|"]
-    lines += [f"| {s or '(none could start)'} | {c} |" for s, c in sequences.most_common()]
+    lines += [f"| {s or '(none could start)'} | {c} |" for s, c in sequence_counts(composed)]
     if composed:
         e = composed[0]
-        names = sorted(e["decisions"][0]["scores"]) if e["decisions"] else []
-        lines += ["", f"Decision log of seed {e['seed']} ({'success' if e['success'] else 'failure'}): the predicted "
+        names = sorted(e.decisions[0]["scores"]) if e.decisions else []
+        lines += ["", f"Decision log of seed {e.seed} ({'success' if e.success else 'failure'}): the predicted "
                       "goal score of each controller after n dynamics steps; `-` outside its initiation set.", "",
                   "| step | chosen | " + " | ".join(names) + " |", "|---|---|" + "---|" * len(names)]
-        for d in e["decisions"]:
+        for d in e.decisions:
             scores = [("-" if d["scores"][n] is None else f"{d['scores'][n]:.3f}") for n in names]
             lines.append(f"| {d['step']} | {d['choice']} | " + " | ".join(scores) + " |")
     return "\n".join(lines)
