@@ -29,6 +29,10 @@ class LeRobotSource:
     subtask: str = "insert"
     name: str | None = None  # default: lerobot_<subtask>
 
+    @property
+    def controller_name(self) -> str:
+        return self.name or f"lerobot_{self.subtask}"
+
 
 @dataclass(frozen=True)
 class LibrarySources:
@@ -58,7 +62,7 @@ def cameras_needed(names, sources: LibrarySources) -> tuple[str, ...]:
         cameras.append(load_cnn_policy(sources.cnn).config.camera)
     for source in sources.lerobot:
         config = Path(source.path) / "config.json"
-        if (source.name or f"lerobot_{source.subtask}") in names and config.is_file():
+        if source.controller_name in names and config.is_file():
             features = json.loads(config.read_text()).get("input_features", {})
             cameras += [k.removeprefix("observation.images.") for k in features if k.startswith("observation.images.")]
     return tuple(dict.fromkeys(cameras))
@@ -69,7 +73,7 @@ def build_library(env, names=None, sources: LibrarySources | None = None) -> dic
     from policies.subtasks import SUBTASKS
 
     sources = sources or LibrarySources()
-    lerobot = {s.name or f"lerobot_{s.subtask}": s for s in sources.lerobot}
+    lerobot = {s.controller_name: s for s in sources.lerobot}
     names = tuple(names) if names is not None else ALL_NAMES + tuple(lerobot)
     library: dict[str, Controller] = {}
     loaded: dict[str, object] = {}

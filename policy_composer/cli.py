@@ -98,7 +98,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     lerobot = tuple(LeRobotSource(*spec.split(":", 1)) for spec in args.lerobot)
     if args.controllers:
         chosen = tuple(args.controllers.split(","))
-        known = (*recipe.controllers, *(s.name or f"lerobot_{s.subtask}" for s in lerobot))
+        known = (*recipe.controllers, *(s.controller_name for s in lerobot))
         if recipe.driver != "controllers" or set(chosen) - set(known):
             raise RecipeError(f"--controllers must name controllers of recipe {recipe.name} or --lerobot ones "
                               f"({', '.join(known) or 'it runs none'}), not {', '.join(chosen)}")
