@@ -426,6 +426,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     from policies.cnn.train import CheckpointError
     from policies.library import LibraryError
+    from policy_composer.interrupt import flag_interrupts
     from policy_composer.recording.features import DatasetError
     from policy_composer.recording.recipes import RecipeError
 
@@ -433,7 +434,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.func is not cmd_dataset_push:  # everything but an upload works offline
         os.environ.setdefault("HF_HUB_OFFLINE", "1")
     try:
-        return args.func(args)
+        with flag_interrupts():  # a Ctrl-C swallowed by a library is raised again at the next episode or stage
+            return args.func(args)
     except (DatasetError, RecipeError, CheckpointError, LibraryError, FileExistsError, FileNotFoundError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

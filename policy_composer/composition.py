@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from policy_composer import interrupt
 from selector.compose import ComposeConfig, ComposedEpisode, compose_episode
 from selector.world_model import GearWorldModel
 
@@ -84,6 +85,7 @@ def run_composition(env, library: dict, world: GearWorldModel, config: ComposeCo
             log.flush()  # an interrupted run keeps every finished episode
             if video is not None:
                 video.save(out / f"composed_seed{seed}.mp4", int(env.unwrapped.control_freq))
+            interrupt.check()
     finally:
         log.close()
     episodes.sort(key=lambda e: seeds.index(e.seed))

@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+from policy_composer import interrupt
+
 MARKER = "stage.json"
 
 
@@ -77,4 +79,5 @@ def run_stages(stages: list[Stage], root: Path, log: Callable[[str], None] = pri
         os.replace(tmp, marker)
         records[stage.name] = StageRecord(stage.name, stage.title, key, folder, seconds, False, facts)
         log(f"{head}: done in {seconds:.0f} s")
+        interrupt.check()
     return records

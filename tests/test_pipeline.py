@@ -10,12 +10,14 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from html import unescape
 from pathlib import Path
 
 import pytest
 
+from policy_composer.interrupt import flag_interrupts
 from policy_composer.pipeline import MARKER, Stage, run_stages
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -83,6 +85,32 @@ def test_an_interrupted_recording_stage_keeps_its_episodes(tmp_path):
     assert records["record"].facts == {"episodes": 3, "recorded_now": 2}
 
 
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
+def test_a_ctrl_c_that_a_stage_swallows_still_stops_the_run_after_that_stage(tmp_path):
+    """A KeyboardInterrupt raised inside a `__del__` is printed and dropped by Python; the run must stop anyway."""
+    calls: list[str] = []
+
+    class ClosesOnCollect:  # like a progress bar that writes when it is collected
+        def __del__(self):
+            os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C lands here: its KeyboardInterrupt is ignored
+            time.sleep(0.05)
+
+    stages = _stages(calls, {"episodes": 3})
+    recording = stages[0].run
+
+    def record(out: Path, inputs):
+        ClosesOnCollect()
+        return recording(out, inputs)
+
+    stages[0] = Stage("record", "record", {"episodes": 3}, record, resumable=True)
+    with flag_interrupts(), pytest.raises(KeyboardInterrupt):
+        run_stages(stages, tmp_path, log=lambda _: None)
+    assert calls == ["record"]  # the recording finished (and is kept), training never started
+    assert (next(tmp_path.glob("record-*")) / MARKER).exists()
+    run_stages(stages, tmp_path, log=lambda _: None)  # outside flag_interrupts nothing stale is left
+    assert calls == ["record", "train"]
+
+
 def test_a_stage_reading_a_missing_stage_is_refused(tmp_path):
     with pytest.raises(ValueError, match="reads \\['record'\\]"):
         run_stages([Stage("train", "train", {}, lambda out, i: {}, inputs=("record",))], tmp_path)
@@ -112,6 +140,11 @@ def _interrupt_once_a_full_task_demo_is_saved(cmd: list[str], env: dict, out: Pa
     """Start the main job, Ctrl-C it once its full-task recording has saved an episode; its exit code and output."""
     proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # as in a terminal
+    streams = {"stdout": [], "stderr": []}
+    readers = [threading.Thread(target=lambda f=getattr(proc, name), acc=acc: acc.extend(f), daemon=True)
+               for name, acc in streams.items()]  # drained as it runs: a full pipe would stall the job
+    for reader in readers:
+        reader.start()
     t0 = time.time()
     while time.time() - t0 < 600:
         sidecars = list(out.glob("pipeline/full-task-demos-*/dataset/meta/policy_composer.json"))
@@ -120,11 +153,19 @@ def _interrupt_once_a_full_task_demo_is_saved(cmd: list[str], env: dict, out: Pa
                 break
         except json.JSONDecodeError:
             pass
-        assert proc.poll() is None, proc.stderr.read()
+        assert proc.poll() is None, "".join(streams["stderr"])[-3000:]
         time.sleep(0.2)
     proc.send_signal(signal.SIGINT)
-    stdout, stderr = proc.communicate(timeout=300)
-    return subprocess.CompletedProcess(cmd, proc.returncode, stdout, stderr)
+    proc.wait(timeout=300)
+    for reader in readers:
+        reader.join(timeout=10)
+    return subprocess.CompletedProcess(cmd, proc.returncode, "".join(streams["stdout"]), "".join(streams["stderr"]))
+
+
+def _messages(stderr: str) -> str:
+    """A run's stderr without its progress bars (what to show when a check fails)."""
+    return "\n".join(line for line in stderr.replace("\r", "\n").splitlines() if line.strip() and "it/s]" not in line
+                     and not re.search(r"\d+%\|", line))
 
 
 def test_the_main_job_runs_every_stage_reuses_them_and_writes_a_report_a_browser_renders(tmp_path):
@@ -133,14 +174,14 @@ def test_the_main_job_runs_every_stage_reuses_them_and_writes_a_report_a_browser
     cmd = [str(exe), "demo", "--profile", "smoke", "--out", str(tmp_path)]
     interrupted = _interrupt_once_a_full_task_demo_is_saved(cmd, env, tmp_path)
     assert interrupted.returncode == 130 and "run the same command again to resume" in interrupted.stderr, \
-        interrupted.stderr[-3000:]
+        _messages(interrupted.stderr)[-4000:]
     first = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=env, timeout=1200)
-    assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
+    assert first.returncode == 0, first.stdout[-3000:] + _messages(first.stderr)[-4000:]
     resumed = [line for line in first.stdout.splitlines() if line.startswith("[")]
     assert ": reused " in resumed[0]  # the insertion demos, finished before the interrupt
     assert resumed[1].startswith("[2/11] record the full-task") and resumed[1].endswith("(resuming)"), resumed[1]
     second = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=env, timeout=600)
-    assert second.returncode == 0, second.stderr[-3000:]
+    assert second.returncode == 0, _messages(second.stderr)[-4000:]
     stage_lines = [line for line in second.stdout.splitlines() if line.startswith("[")]
     assert len(stage_lines) == 11 and all(": reused " in line for line in stage_lines), second.stdout
 

@@ -17,6 +17,7 @@ import torch
 
 import tasks  # noqa: F401
 from policies.library import LeRobotSource, LibraryError, LibrarySources
+from policy_composer.checkpoint import CheckpointError
 from policy_composer.recording import journal
 from policy_composer.recording.catalog import HubUnreachable, drop_controller, push_dataset, summarize
 from policy_composer.recording.features import DatasetError, open_dataset
@@ -145,9 +146,12 @@ def test_bad_input_is_named(insertion_demos, tmp_path):
     assert rollouts.cameras == ("head", "left_forearm")
     with pytest.raises(LibraryError, match="no controller named 'mp_fly'"):
         record_recipe(replace(rollouts, controllers=("mp_fly",)), tmp_path / "ro1", settings=EnvSettings(resolution=32))
+    missing = LibrarySources(dmp=str(tmp_path / "none"), cnn=str(tmp_path / "none"))  # not results/models/*
+    with pytest.raises(CheckpointError, match="no CNN policy checkpoint .* train one with `policy-composer train"):
+        record_recipe(rollouts, tmp_path / "ro2", settings=EnvSettings(resolution=32), sources=missing)
     with pytest.raises(FileNotFoundError, match="train dmp"):
-        record_recipe(rollouts, tmp_path / "ro2", settings=EnvSettings(resolution=32),
-                      sources=LibrarySources(dmp=str(tmp_path / "none")))
+        record_recipe(replace(rollouts, controllers=("dmp_move",)), tmp_path / "ro3",
+                      settings=EnvSettings(resolution=32), sources=missing)
     with pytest.raises(RecipeError, match="non-empty subset"):
         replace(rollouts, cameras=("wrist",))
 

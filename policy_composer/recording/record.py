@@ -6,6 +6,7 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 from policies.library import LibrarySources, build_library, cameras_needed
+from policy_composer import interrupt
 from policy_composer.recording import journal
 from policy_composer.recording.features import read_sidecar
 from policy_composer.recording.recipes import Recipe, RecipeError
@@ -84,6 +85,7 @@ def _save(recorder, bar, success: bool, seed: int, **info) -> None:
     recorder.save_episode(success, seed=seed, **info)
     bar.update()
     bar.set_postfix(seed=seed, frames=recorder.episodes[-1]["length"])
+    interrupt.check()
 
 
 def _record_expert(recipe: Recipe, recorder, target: int, seed: int, bar) -> None:

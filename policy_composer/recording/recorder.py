@@ -22,6 +22,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from policy_composer import interrupt
 from policy_composer.recording import journal
 from policy_composer.recording.features import (SIDECAR, DatasetError, dataset_features, image_key, read_info,
                                                 read_sidecar)
@@ -36,7 +37,11 @@ def _deferred_sigint():
         yield
         return
     caught = []
-    previous = signal.signal(signal.SIGINT, lambda *_: caught.append(True))
+    def hold(signum, frame):
+        caught.append(True)
+        interrupt.request()
+
+    previous = signal.signal(signal.SIGINT, hold)
     try:
         yield
     finally:
