@@ -4,6 +4,10 @@ A controller here commands the left arm's 7 joint targets and its gripper and le
 targets. Every command passes a safety check against the Panda's joint position and velocity limits; a
 command that would break them stops the controller "for safety" (the paper's `*`) and holds the arm.
 
+A controller serving a subtask also has the subtask guard its gripper: a release the subtask would not survive
+(the gear let go on top of the peg instead of on it) is not sent; the controller backs off to where the subtask
+began, still holding the gear, and fails, so the selector can give the subtask to another controller.
+
 Initiation sets and outcomes are judged on the simulator's state (`env.evaluate()`, the gear pose): they
 stand for the perception that decides where each controller may run, and the controllers' own inputs stay
 their own (joint angles for planning and DMPs, camera pixels for the CNN).
@@ -84,6 +88,8 @@ class LeftArmController(Controller):
 
     obs_keys = ("extra.state",)
     action_kind = "joint_targets"
+    subtask = None  # the policies.subtasks.Subtask it serves: guards the release, says how to back off
+    ik = None  # a LeftArmIK (subclasses that serve a subtask set it)
 
     def __init__(self, env):
         self.env = env.unwrapped if hasattr(env, "unwrapped") else env
@@ -108,13 +114,15 @@ class LeftArmController(Controller):
         self._hold = np0(self.env.hold_action())
         self._last = self.left_qpos(obs)
         self._gripper = float(self._hold[7])
+        self._back_off: list[np.ndarray] | None = None  # joint targets still to go, once backing off
+        self._back_off_reason = ""
 
     def act(self, obs) -> torch.Tensor:
         action = self._hold.copy()
         if self.outcome is Outcome.RUNNING:
-            cmd = self.next_command(obs)
+            cmd = self._guarded_command(obs)
             if cmd is None:
-                ok, why = self.succeeded(self.scene.info())
+                ok, why = (False, self._back_off_reason) if self._back_off is not None else self.succeeded(self.scene.info())
                 self.outcome, self.reason = (Outcome.DONE, "") if ok else (Outcome.FAILED, why)
             else:
                 q, gripper = cmd
@@ -128,6 +136,19 @@ class LeftArmController(Controller):
 
     def done(self, obs=None) -> bool:
         return self.outcome is not Outcome.RUNNING
+
+    def _guarded_command(self, obs) -> tuple[np.ndarray, float] | None:
+        """The next command, unless it opens the gripper where the subtask forbids: then the back-off's next one."""
+        if self._back_off is None:
+            cmd = self.next_command(obs)
+            if cmd is None or cmd[1] <= 0 or self.subtask is None:
+                return cmd
+            blocked = self.subtask.release_blocked(self.scene.info())
+            if not blocked:
+                return cmd
+            self._back_off = list(self.subtask.back_off(self.ik, self.scene, np0(self.env.left_arm.robot.get_qpos())))
+            self._back_off_reason = f"{'backed off' if self._back_off else 'kept the gear (no way back)'}: {blocked}"
+        return (self._back_off.pop(0), GRIPPER_CLOSED) if self._back_off else None
 
     def safety_violation(self, q: np.ndarray) -> str:
         """Why joint targets `q` would break the Panda's limits ("" if they would not)."""

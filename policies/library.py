@@ -15,6 +15,9 @@ from policies.base import Controller
 KINDS: dict[str, tuple[str, ...]] = {"mp": ("pick", "move", "insert"), "dmp": ("pick", "move", "insert"),
                                      "cnn": ("insert",)}
 ALL_NAMES = tuple(f"{kind}_{s}" for kind, subtasks in KINDS.items() for s in subtasks)
+# Bumped when the controllers behave differently, so that stored runs of the old ones are not reused.
+# 2: an insertion that would let the gear go on top of the peg backs off with it to the pre-insertion pose.
+LIBRARY_REVISION = 2
 
 
 class LibraryError(ValueError):

@@ -17,7 +17,7 @@ import sapien
 
 from policies.arm import Segment, np0
 from policies.planning import HeldObject, PlanningError, SceneCollisionModel, plan_rrt_connect, time_parameterize
-from policies.subtasks import SubtaskController, Waypoint
+from policies.subtasks import SubtaskController, Waypoint, tcp_line
 
 
 class MotionPlanningController(SubtaskController):
@@ -49,15 +49,10 @@ class MotionPlanningController(SubtaskController):
 
     def cartesian_line(self, q_from: np.ndarray, wp: Waypoint) -> tuple[np.ndarray, np.ndarray]:
         """Joint targets (T, 7) moving the TCP on a straight line to the waypoint at `wp.step` m per step."""
-        p_from = self._tcp_of(q_from)
-        n = max(1, int(np.ceil(np.linalg.norm(wp.tcp - p_from) / wp.step)))
-        q, out = np.asarray(q_from, dtype=float), []
-        for k in range(1, n + 1):
-            q, ok = self.ik.solve(sapien.Pose(p_from + (wp.tcp - p_from) * k / n, wp.quat), q)
-            if not ok:
-                raise PlanningError(f"{self.name}: no IK solution on the line to {np.round(wp.tcp, 3)}")
-            out.append(q[:7])
-        return np.array(out), q
+        try:
+            return tcp_line(self.ik, q_from, self._tcp_of(q_from), wp.tcp, wp.quat, wp.step)
+        except PlanningError as e:
+            raise PlanningError(f"{self.name}: {e}") from None
 
     def _tcp_of(self, q9: np.ndarray) -> np.ndarray:
         """World TCP position at configuration q9 (forward kinematics in the planner's model)."""

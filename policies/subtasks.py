@@ -42,6 +42,20 @@ def ik_hand_down(ik: LeftArmIK, scene: SceneGeometry, p: np.ndarray, seed_q: np.
     return solution
 
 
+def tcp_line(ik: LeftArmIK, q_from: np.ndarray, p_from: np.ndarray, p_to: np.ndarray, quat: np.ndarray,
+             step: float) -> tuple[np.ndarray, np.ndarray]:
+    """Joint targets (T, 7) moving the TCP on a straight line from p_from to p_to at `step` m per control step,
+    and the last solution (9)."""
+    n = max(1, int(np.ceil(np.linalg.norm(p_to - p_from) / step)))
+    q, out = np.asarray(q_from, dtype=float), []
+    for k in range(1, n + 1):
+        q, ok = ik.solve(sapien.Pose(p_from + (p_to - p_from) * k / n, quat), q)
+        if not ok:
+            raise PlanningError(f"no IK solution on the line to {np.round(p_to, 3)}")
+        out.append(q[:7])
+    return np.array(out), q
+
+
 def line_to(ik: LeftArmIK, q_from: np.ndarray, p: np.ndarray, quat: np.ndarray, gripper: float, step: float,
             settle: int = 4) -> Waypoint:
     q, ok = ik.solve(sapien.Pose(p, quat), q_from)
@@ -62,6 +76,14 @@ class Subtask:
 
     def succeeded(self, info: dict) -> tuple[bool, str]:
         raise NotImplementedError
+
+    def release_blocked(self, info: dict) -> str:
+        """Why the gripper must not open now ("" if it may)."""
+        return ""
+
+    def back_off(self, ik: LeftArmIK, scene: SceneGeometry, q_now: np.ndarray) -> np.ndarray:
+        """Joint targets (T, 7), gripper closed, from a blocked release back to where the subtask starts."""
+        return np.zeros((0, 7))
 
     holds_gear = False  # whether the gear is in the hand on the way (the planner attaches it)
 
@@ -125,6 +147,22 @@ class Insert(Subtask):
     def succeeded(self, info):
         return info["success"], "the gear is not seated on the peg"
 
+    def release_blocked(self, info):
+        if info["gear_grasped"] and not info["gear_inserted"]:
+            return "the gear did not go down the peg (it would have been let go on top of it)"
+        return ""
+
+    def back_off(self, ik, scene, q_now):
+        """Straight up to the pre-insertion height, then across to the pre-insertion pose (none if IK finds no way)."""
+        tcp, quat, pre = scene.tcp(), np0(ik.arm.tcp.pose.q), scene.pre_insertion_tcp()
+        above = np.array([tcp[0], tcp[1], max(tcp[2], pre[2])])
+        try:
+            up, q = tcp_line(ik, q_now, tcp, above, quat, step=0.004)
+            across, _ = tcp_line(ik, q, above, pre, quat, step=0.004)
+        except PlanningError:
+            return np.zeros((0, 7))
+        return np.concatenate([up, across, across[-1:].repeat(4, axis=0)])  # and settle there
+
 
 SUBTASKS = {s.name: s for s in (Pick(), Move(), Insert())}
 
@@ -175,6 +213,7 @@ class LearnedController(LeftArmController):
     def __init__(self, env, subtask: Subtask, name: str, max_steps: int = 120):
         super().__init__(env)
         self.subtask, self.name, self.initiation, self.max_steps = subtask, name, subtask.initiation, max_steps
+        self.ik = LeftArmIK(self.env)
 
     def can_start(self, obs) -> bool:
         return self.subtask.can_start(self.scene)

@@ -370,7 +370,7 @@ def build_parser() -> argparse.ArgumentParser:
     compose.add_argument("--horizon", type=int, default=10)
     compose.add_argument("--samples", type=int, default=16)
     compose.add_argument("--reselect-every", type=int, default=None, help="also decide every this many control steps")
-    compose.add_argument("--max-failures", type=int, default=2,
+    compose.add_argument("--max-failures", type=int, default=1,
                          help="a controller that failed this often since the last success is not chosen again")
     compose.add_argument("--knock-out-step", type=int, default=None,
                          help="perturbation: knock the gear out of the gripper at this control step (or when next lifted)")

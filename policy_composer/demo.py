@@ -78,6 +78,7 @@ def stages(p: Profile) -> list[Stage]:
     from policy_composer.recording.recipes import load_recipe
     from selector.compose import ComposeConfig
     from selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
+    from policies.library import LIBRARY_REVISION
     from tasks.gear_assembly import TASK_REVISION
 
     insertion = load_recipe("gear-insertion-demos")
@@ -89,6 +90,7 @@ def stages(p: Profile) -> list[Stage]:
     goal = GoalScoreConfig(epochs=p.goal_epochs, num_mixtures=p.mixtures, image_size=p.image_size)
     compose = ComposeConfig(horizon=p.horizon, samples=p.samples)
     env = {"resolution": p.resolution, "clearance_mm": 2.0, "task_revision": TASK_REVISION}
+    library = {"library_revision": LIBRARY_REVISION}  # in the keys of the stages that run the controllers
 
     def record(recipe, episodes):
         return {"recipe": asdict(recipe), "episodes": episodes, **env}
@@ -103,7 +105,8 @@ def stages(p: Profile) -> list[Stage]:
               lambda out, _: _fit_dmp(out, p.dmp_episodes)),
         Stage("cnn", f"train the CNN policy ({p.cnn_epochs} epochs)", asdict(cnn),
               lambda out, i: _train_cnn(out, i["insertion-demos"], cnn), inputs=("insertion-demos",)),
-        Stage("controller-rollouts", f"record rollouts of each controller ({p.rollouts} each)", record(rollouts, p.rollouts),
+        Stage("controller-rollouts", f"record rollouts of each controller ({p.rollouts} each)",
+              {**record(rollouts, p.rollouts), **library},
               lambda out, i: _record(rollouts, out, p.rollouts, p.resolution, _sources(i)), inputs=("dmp", "cnn"),
               resumable=True),
         Stage("world-model", "train the VAE, the dynamics models and the goal scorers",
@@ -113,14 +116,15 @@ def stages(p: Profile) -> list[Stage]:
         Stage("goal-score", "evaluate the goal score of each camera on the held-out demonstrations", {"cameras": CAMERAS},
               lambda out, i: _evaluate_goal(out, i), inputs=("world-model", "full-task-demos")),
         Stage("table", f"Table I: each controller kind on each subtask ({p.table_trials} per cell)",
-              {"trials": p.table_trials, "kinds": ("MP", "DMP", "CNN"), **env},
+              {"trials": p.table_trials, "kinds": ("MP", "DMP", "CNN"), **env, **library},
               lambda out, i: _table(out, i, p), inputs=("dmp", "cnn")),
         Stage("compose", f"compose the library with the selector (episodes: {p.compose_episodes})",
-              {"compose": asdict(compose), "episodes": p.compose_episodes, **env},
+              {"compose": asdict(compose), "episodes": p.compose_episodes, **env, **library},
               lambda out, i: _compose(out, i, compose, list(range(p.compose_episodes)), p.resolution, None),
               inputs=("dmp", "cnn", "world-model"), resumable=True),
         Stage("knock-out", f"recovery from the gear knocked out of the gripper (episodes: {p.knockout_episodes})",
-              {"compose": asdict(compose), "episodes": p.knockout_episodes, "knock_out_step": 100, **env},
+              {"compose": asdict(compose), "episodes": p.knockout_episodes, "knock_out_step": 100, **env,
+               **library},
               lambda out, i: _compose(out, i, compose, list(range(100, 100 + p.knockout_episodes)), p.resolution, 100),
               inputs=("dmp", "cnn", "world-model"), resumable=True),
         Stage("mdp", "the random-walk MDP experiments (19 and 100 states)",

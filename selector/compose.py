@@ -26,7 +26,7 @@ class ComposeConfig:
     samples: int = 16  # K: sampled rollouts per controller
     reselect_every: int | None = None  # also decide again every this many control steps; None: only at termination
     max_steps: int = 900  # control steps per episode
-    max_failures: int = 2  # a controller that failed this often since the last success is not chosen again
+    max_failures: int = 1  # a controller that failed this often since the last success is not chosen again
 
 
 @dataclass
@@ -65,9 +65,10 @@ class Eligibility:
 
     A controller that has just succeeded sits out the next decision: its subtask is done, and where the next
     subtask's initiation set and its own overlap (a gear at the edge of the pre-insertion pose) re-running it would
-    only repeat itself. A controller that has failed `max_failures` times since the last success is dropped until
-    another controller succeeds: its dynamics model keeps predicting a success the world does not give, and
-    without this the selector retries it until the episode runs out (a move that cannot reach the pose).
+    only repeat itself. A controller that has failed `max_failures` times (default once) since the last success is dropped
+    until another controller succeeds: its dynamics model keeps predicting a success the world does not give, and
+    a failed insertion backs off to the state it started from, where the same open-loop controller would fail the
+    same way; without this the selector retries it until the episode runs out.
     """
 
     def __init__(self, max_failures: int):

@@ -1,5 +1,5 @@
 """Motion-planning controllers: OMPL plans that are collision-free and within limits, the subtasks done, open-loop
-insertion that needs a centred grasp, initiation sets and the safety stop."""
+insertion that needs a centred grasp, initiation sets, the safety stop and the release guard."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import sapien
 from policies.arm import Outcome, ScriptedController, Segment, run_activation
 from policies.base import InitiationError
 from policies.motion_planning import MotionPlanningController
-from policies.subtasks import SUBTASKS
+from policies.subtasks import SUBTASKS, LearnedController
 from policies.planning import (VELOCITY_LIMIT, PlanningError, SceneCollisionModel, plan_rrt_connect,
                                time_parameterize)
 from tasks.gear_assembly import LEFT_START_QPOS
@@ -60,9 +60,16 @@ def test_centred_grasp_inserts_and_offset_grasp_fails(state_env):
         obs = run_activation(state_env, move, obs, seed=1)
         assert move.outcome is Outcome.DONE, move.reason
         obs = run_activation(state_env, insert, obs, seed=1)
-        outcomes[offset] = (insert.outcome, bool(state_env.unwrapped.evaluate()["success"][0]))
+        info = insert.scene.info()
+        outcomes[offset] = (insert.outcome, info["success"])
     assert outcomes[0.0] == (Outcome.DONE, True)
     assert outcomes[0.009] == (Outcome.FAILED, False)  # 9 mm off with 2 mm clearance: open loop cannot seat it
+    # It did not let the gear go on top of the peg: it backed off with it to the pre-insertion pose, where any
+    # insertion controller may start again.
+    assert insert.reason.startswith("backed off: the gear did not go down the peg"), insert.reason
+    assert info["gear_grasped"] and info["gear_at_peg"] and not info["gear_inserted"]
+    np.testing.assert_allclose(insert.scene.tcp(), insert.scene.pre_insertion_tcp(), atol=0.004)
+    assert insert.can_start(obs)
 
 
 def test_initiation_sets_refuse_wrong_states(state_env):
@@ -90,3 +97,23 @@ def test_a_command_past_the_velocity_limit_stops_for_safety(state_env):
     second = jump.act(obs)
     assert jump.outcome is Outcome.SAFETY_STOP and "10.00 rad/s" in jump.reason and jump.done(obs)
     np.testing.assert_allclose(second[:7].numpy(), held[:7].numpy())  # the arm holds its last safe target
+
+
+def test_a_learned_insertion_that_lets_go_above_the_peg_keeps_the_gear_and_fails(state_env):
+    """The release guard holds for closed-loop controllers too: a policy that opens the gripper at the
+    pre-insertion pose (the gear not yet on the peg) is not let go; it fails with the gear still in the hand."""
+
+    class OpensAtOnce(LearnedController):
+        def predict(self, obs):
+            return self.left_qpos(obs), 1.0  # stay, and open
+
+    obs, _ = state_env.reset(seed=1)
+    for name in ("pick", "move"):
+        controller = MotionPlanningController(state_env, SUBTASKS[name], grasp_offset=0.0)
+        obs = run_activation(state_env, controller, obs, seed=1)
+        assert controller.outcome is Outcome.DONE, controller.reason
+    opens = OpensAtOnce(state_env, SUBTASKS["insert"], "opens_insert")
+    obs = run_activation(state_env, opens, obs, seed=1)
+    info = opens.scene.info()
+    assert opens.outcome is Outcome.FAILED and opens.reason.startswith("backed off: the gear did not go down")
+    assert info["gear_grasped"] and info["gear_at_peg"] and opens.can_start(obs)

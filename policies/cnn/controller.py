@@ -34,12 +34,11 @@ class CNNController(LearnedController):
         self.policy = policy
         sl = PROPRIOCEPTION[policy.config.proprioception]
         self.obs_keys = (f"sensor_data.{policy.config.camera}.rgb", f"extra.state[{sl.start}:{sl.stop}]")
-        self._ik = LeftArmIK(self.env)
 
     def reset(self, obs, seed=None):
         super().reset(obs, seed)
         q9 = np0(self.env.left_arm.robot.get_qpos())
-        solution = self._ik.solve_hand_down(self.scene.tcp(), self.scene.finger_dir(), q9)
+        solution = self.ik.solve_hand_down(self.scene.tcp(), self.scene.finger_dir(), q9)
         self._quat = solution[0] if solution is not None else np0(self.env.left_arm.tcp.pose.q)
         self._command = self.scene.tcp() if self.policy.config.action_space == "hand" else self.left_qpos(obs)
 
@@ -52,7 +51,7 @@ class CNNController(LearnedController):
         if self.policy.config.action_space == "joint":
             self._command = self._command + a[:7]
             return self._command.copy(), gripper
-        self._command, q = hand_step(self._ik, self._command, a[:3], self._quat)
+        self._command, q = hand_step(self.ik, self._command, a[:3], self._quat)
         return q, gripper
 
 
