@@ -122,7 +122,8 @@ class LeftArmController(Controller):
         if self.outcome is Outcome.RUNNING:
             cmd = self._guarded_command(obs)
             if cmd is None:
-                ok, why = (False, self._back_off_reason) if self._back_off is not None else self.succeeded(self.scene.info())
+                backed_off = self._back_off is not None
+                ok, why = (False, self._back_off_reason) if backed_off else self.succeeded(self.scene.info())
                 self.outcome, self.reason = (Outcome.DONE, "") if ok else (Outcome.FAILED, why)
             else:
                 q, gripper = cmd

@@ -75,10 +75,10 @@ PROFILES = {
 def stages(p: Profile) -> list[Stage]:
     """The main job's stages at the sizes of profile `p`."""
     from policies.cnn.configuration_cnn import CNNPolicyConfig
+    from policies.library import LIBRARY_REVISION
     from policy_composer.recording.recipes import load_recipe
     from selector.compose import ComposeConfig
     from selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
-    from policies.library import LIBRARY_REVISION
     from tasks.gear_assembly import TASK_REVISION
 
     insertion = load_recipe("gear-insertion-demos")
