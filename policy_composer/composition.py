@@ -106,6 +106,16 @@ def sequence_counts(episodes: list[ComposedEpisode]) -> list[tuple[str, int]]:
     return Counter(" -> ".join(e.sequence) for e in episodes).most_common()
 
 
+def back_offs(episodes: list[ComposedEpisode]) -> str:
+    """How often a controller backed off with the gear, and how often the task was done anyway ("" if never)."""
+    backed = [e for e in episodes if any(a.reason.startswith("backed off") for a in e.activations)]
+    if not backed:
+        return ""
+    return (f"A controller backed off with the gear (instead of letting it go where its subtask fails) in "
+            f"{len(backed)} episodes; another controller then finished the task in "
+            f"{sum(e.success for e in backed)}/{len(backed)}.")
+
+
 def summary(episodes: list[ComposedEpisode], config: ComposeConfig) -> str:
     n, ok = len(episodes), sum(e.success for e in episodes)
     lines = ["# Composed controllers (the selector over the whole library)", "",
@@ -116,6 +126,8 @@ def summary(episodes: list[ComposedEpisode], config: ComposeConfig) -> str:
     if knocked:
         lines += [f"Gear knocked out of the gripper in {len(knocked)} episodes; recovered (task still done) in "
                   f"{sum(e.success for e in knocked)}/{len(knocked)}.", ""]
+    if back_offs(episodes):
+        lines += [back_offs(episodes), ""]
     lines += ["## Controller sequences", "", "| sequence | episodes |", "|---|---|"]
     lines += [f"| {s} | {c} |" for s, c in sequence_counts(episodes)]
     failed = [e for e in episodes if not e.success]

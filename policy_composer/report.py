@@ -11,7 +11,7 @@ from importlib import metadata
 from pathlib import Path
 
 from policy_composer.controller_table import PAPER as PAPER_TABLE, SUBTASK_COLUMNS
-from policy_composer.composition import PAPER_COMPOSED, load_episodes, sequence_counts
+from policy_composer.composition import PAPER_COMPOSED, back_offs, load_episodes, sequence_counts
 from policy_composer.pipeline import StageRecord
 from selector.compose import ComposedEpisode
 
@@ -127,6 +127,8 @@ def _composition(composed: list[ComposedEpisode], video: str | None, knock_video
     if knock_video:
         lines += ["", f'<video src="{knock_video}" controls muted preload="metadata" width="512"></video>', "",
                   f"[The gear knocked out at step 100]({knock_video}): the selector picks a pick-up again."]
+    if back_offs(composed):
+        lines += ["", back_offs(composed)]
     lines += ["", "| controllers chosen, in order | episodes |", "|---|---|"]
     lines += [f"| {s or '(none could start)'} | {c} |" for s, c in sequence_counts(composed)]
     if composed:

@@ -12,9 +12,10 @@ import torch
 
 from policies.library import LibrarySources, build_library
 from policy_composer.checkpoint import CheckpointError
+from policy_composer.composition import back_offs, summary
 from policy_composer.recording.features import image_key
 from policy_composer.recording.frames import load_frames
-from selector.compose import Activation, ComposeConfig, Eligibility, compose_episode
+from selector.compose import Activation, ComposeConfig, ComposedEpisode, Eligibility, compose_episode
 from selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
 from selector.dynamics import load_dynamics, transition_pairs
 from selector.evaluate import evaluate_goal_scores
@@ -79,7 +80,7 @@ def test_mismatched_checkpoints_are_refused(world, tmp_path):
 
 def test_a_failing_controller_is_dropped_until_another_succeeds():
     """Seed 7 of the 10-trial run: a move that cannot reach the pre-insertion pose was retried until max_steps."""
-    eligibility = Eligibility(max_failures=2)
+    eligibility = Eligibility(max_failures=2)  # the default is 1; 2 shows the count
     eligibility.record(Activation("mp_pick", 0, outcome="done"))
     assert not eligibility.allows("mp_pick") and eligibility.allows("dmp_move")  # just succeeded: sits out once
     eligibility.record(Activation("dmp_move", 80, outcome="failed"))
@@ -90,6 +91,19 @@ def test_a_failing_controller_is_dropped_until_another_succeeds():
     assert eligibility.allows("mp_move")
     eligibility.record(Activation("mp_move", 200, outcome="done"))
     assert eligibility.allows("dmp_move") and not eligibility.allows("mp_move")
+
+
+def test_the_summary_counts_back_offs_and_what_came_of_them():
+    backed = "backed off: the gear did not go down the peg"
+    episodes = [ComposedEpisode(0, True, 300, activations=[Activation("mp_insert", 0, 90, "failed", backed),
+                                                           Activation("cnn_insert", 90, 80, "done")]),
+                ComposedEpisode(1, False, 200, activations=[Activation("dmp_insert", 0, 90, "failed", backed)]),
+                ComposedEpisode(2, False, 100, activations=[Activation("cnn_insert", 0, 90, "failed", "not seated")])]
+    text = summary(episodes, ComposeConfig())
+    assert "| composed | 1/3 |" in text
+    assert "backed off with the gear (instead of letting it go where its subtask fails) in 2 episodes; another " \
+           "controller then finished the task in 1/2." in text
+    assert back_offs(episodes[2:]) == "" and "backed off" not in summary(episodes[2:], ComposeConfig())
 
 
 def test_a_composed_episode_runs_end_to_end(world):
