@@ -12,8 +12,6 @@ before it loadable, and `LeRobotRecorder(..., resume=True)` appends to the same 
 from __future__ import annotations
 
 import json
-import signal
-import threading
 import warnings
 from contextlib import contextmanager
 from pathlib import Path
@@ -28,26 +26,6 @@ from policy_composer.recording.features import (SIDECAR, DatasetError, dataset_f
                                                 read_sidecar)
 
 VCODEC = "h264"  # not "auto": it picks NVENC and fails without a GPU
-
-
-@contextmanager
-def _deferred_sigint():
-    """Hold back Ctrl-C while an episode is being written, then raise it."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    caught = []
-    def hold(signum, frame):
-        caught.append(True)
-        interrupt.request()
-
-    previous = signal.signal(signal.SIGINT, hold)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-    if caught:
-        raise KeyboardInterrupt
 
 
 @contextmanager
@@ -180,7 +158,7 @@ class LeRobotRecorder(gym.Wrapper):
             frame["progress"] = np.array([t / max(T - 1, 1) if success else -1.0], dtype=np.float32)
             frame["next.done"] = np.array([t == T - 1])
             frame["task"] = self.task
-        with _deferred_sigint(), _quiet_lerobot():
+        with interrupt.held_back(), _quiet_lerobot():  # an episode is written whole
             journal.begin(self.root)
             if self.root.exists():  # lerobot's resume path: this episode goes into new files
                 dataset = LeRobotDataset(self.repo_id, root=self.root, **self.video)
