@@ -112,7 +112,7 @@ def back_offs(episodes: list[ComposedEpisode]) -> str:
     if not backed:
         return ""
     return (f"A controller backed off with the gear (instead of letting it go where its subtask fails) in "
-            f"{len(backed)} episodes; another controller then finished the task in "
+            f"{len(backed)} episode{'s' * (len(backed) != 1)}; another controller then finished the task in "
             f"{sum(e.success for e in backed)}/{len(backed)}.")
 
 
