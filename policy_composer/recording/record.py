@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
@@ -63,10 +64,12 @@ def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None,
     recorder = LeRobotRecorder(env, root, task=recipe.task, resume=resume,
                                metadata={"recipe": recipe.name, "env": asdict(settings),
                                          "expert": asdict(recipe.expert), "train_episodes": recipe.train_episodes})
-    units = recipe.controllers if recipe.driver == "controllers" else ("expert",)
-    target = per_unit * len(units)
-    bar = tqdm(total=target, initial=min(recorder.num_episodes, target), desc=recipe.name, unit="episode",
-               disable=not progress)
+    if recipe.driver == "controllers":  # a controller with more episodes than asked for counts only what was asked
+        recorded = Counter(e.get("controller_name") for e in recorder.episodes)
+        total, done = per_unit * len(recipe.controllers), sum(min(recorded[n], per_unit) for n in recipe.controllers)
+    else:
+        total, done = per_unit, min(recorder.num_episodes, per_unit)
+    bar = tqdm(total=total, initial=done, desc=recipe.name, unit="episode", disable=not progress)
     try:
         if recipe.driver == "controllers":
             library = build_library(recorder, recipe.controllers, sources)
