@@ -126,8 +126,9 @@ def summary(episodes: list[ComposedEpisode], config: ComposeConfig) -> str:
     if knocked:
         lines += [f"Gear knocked out of the gripper in {len(knocked)} episodes; recovered (task still done) in "
                   f"{sum(e.success for e in knocked)}/{len(knocked)}.", ""]
-    if back_offs(episodes):
-        lines += [back_offs(episodes), ""]
+    backed = back_offs(episodes)
+    if backed:
+        lines += [backed, ""]
     lines += ["## Controller sequences", "", "| sequence | episodes |", "|---|---|"]
     lines += [f"| {s} | {c} |" for s, c in sequence_counts(episodes)]
     failed = [e for e in episodes if not e.success]

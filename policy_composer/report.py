@@ -127,8 +127,9 @@ def _composition(composed: list[ComposedEpisode], video: str | None, knock_video
     if knock_video:
         lines += ["", f'<video src="{knock_video}" controls muted preload="metadata" width="512"></video>', "",
                   f"[The gear knocked out at step 100]({knock_video}): the selector picks a pick-up again."]
-    if back_offs(composed):
-        lines += ["", back_offs(composed)]
+    backed = back_offs(composed)
+    if backed:
+        lines += ["", backed]
     lines += ["", "| controllers chosen, in order | episodes |", "|---|---|"]
     lines += [f"| {s or '(none could start)'} | {c} |" for s, c in sequence_counts(composed)]
     if composed:
