@@ -65,10 +65,10 @@ class Eligibility:
 
     A controller that has just succeeded sits out the next decision: its subtask is done, and where the next
     subtask's initiation set and its own overlap (a gear at the edge of the pre-insertion pose) re-running it would
-    only repeat itself. A controller that has failed `max_failures` times (default once) since the last success is dropped
-    until another controller succeeds: its dynamics model keeps predicting a success the world does not give, and
-    a failed insertion backs off to the state it started from, where the same open-loop controller would fail the
-    same way; without this the selector retries it until the episode runs out.
+    only repeat itself. A controller that has failed `max_failures` times (default once) since the last success is
+    dropped until another controller succeeds: its dynamics model keeps predicting a success the world does not
+    give, and a failed insertion backs off to the state it started from, where the same open-loop controller would
+    fail the same way; without this the selector retries it until the episode runs out.
     """
 
     def __init__(self, max_failures: int):

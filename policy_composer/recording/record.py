@@ -64,8 +64,8 @@ def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None,
     recorder = LeRobotRecorder(env, root, task=recipe.task, resume=resume,
                                metadata={"recipe": recipe.name, "env": asdict(settings),
                                          "expert": asdict(recipe.expert), "train_episodes": recipe.train_episodes})
+    recorded = Counter(e.get("controller_name") for e in recorder.episodes)  # per controller, when resuming
     if recipe.driver == "controllers":  # a controller with more episodes than asked for counts only what was asked
-        recorded = Counter(e.get("controller_name") for e in recorder.episodes)
         total, done = per_unit * len(recipe.controllers), sum(min(recorded[n], per_unit) for n in recipe.controllers)
     else:
         total, done = per_unit, min(recorder.num_episodes, per_unit)
@@ -74,7 +74,7 @@ def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None,
         if recipe.driver == "controllers":
             library = build_library(recorder, recipe.controllers, sources)
             for name in recipe.controllers:
-                seed = _record_controller(recorder, library[name], per_unit, seed, bar)
+                seed = _record_controller(recorder, library[name], recorded[name], per_unit, seed, bar)
         else:
             _record_expert(recipe, recorder, per_unit, seed, bar)
     finally:
@@ -123,13 +123,13 @@ def _record_expert(recipe: Recipe, recorder, target: int, seed: int, bar) -> Non
         seed += 1
 
 
-def _record_controller(recorder, controller, target: int, seed: int, bar) -> int:
-    """`target` activations of one controller, each from a start state inside its initiation set (the open-loop
-    expert run, unrecorded, up to where the controller's subtask begins); failures are kept. Returns the next seed."""
+def _record_controller(recorder, controller, done: int, target: int, seed: int, bar) -> int:
+    """Activations of one controller until it has `target` (`done` are recorded already), each from a start state
+    inside its initiation set (the open-loop expert run, unrecorded, up to where the controller's subtask begins);
+    failures are kept. Returns the next seed."""
     from policies.arm import run_activation
     from policy_composer.controller_table import start_state
 
-    done = sum(e.get("controller_name") == controller.name for e in recorder.episodes)
     while done < target:
         recorder.recording = False
         obs = start_state(recorder, seed, controller.subtask.name)
