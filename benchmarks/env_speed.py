@@ -13,7 +13,7 @@ import gymnasium as gym
 import mani_skill.envs  # noqa: F401
 import torch
 
-import tasks  # noqa: F401
+import policy_composer.tasks.gear_assembly  # noqa: F401  (registers GearAssembly-v1)
 
 
 def steps_per_second(env, action_fn, steps: int) -> float:

@@ -15,14 +15,14 @@ import time
 
 import torch
 
-from policies.cnn.configuration_cnn import CNNPolicyConfig
-from policies.cnn.modeling_cnn import CNNPolicy
-from policies.library import ALL_NAMES
-from selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
-from selector.dynamics import LatentDynamics
-from selector.goal_score import GoalScoreModel
-from selector.vae import VAE
-from selector.world_model import GearWorldModel
+from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
+from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
+from policy_composer.policies.library import all_names
+from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
+from policy_composer.selector.dynamics import LatentDynamics
+from policy_composer.selector.goal_score import GoalScoreModel
+from policy_composer.selector.vae import VAE
+from policy_composer.selector.world_model import GearWorldModel
 
 
 def timed(fn, repeat: int) -> float:
@@ -53,14 +53,14 @@ def main() -> None:
 
     vae_config, dyn_config, goal_config = VAEConfig(), DynamicsConfig(), GoalScoreConfig()
     vae = VAE(vae_config).eval()
-    dynamics = {n: LatentDynamics(DynamicsConfig(controller=n)).eval() for n in ALL_NAMES}
+    dynamics = {n: LatentDynamics(DynamicsConfig(controller=n)).eval() for n in all_names()}
     world = GearWorldModel(vae, dynamics, GoalScoreModel(goal_config).eval())
     selector = world.selector(horizon=10, samples=16, seed=0)
     obs = {"sensor_data": {"head": {"rgb": torch.randint(0, 255, (1, 128, 128, 3), dtype=torch.uint8)}}}
     encode = timed(lambda: world.encode(obs), args.decisions)
     decide = timed(lambda: selector.decide(world.encode(obs)), args.decisions)
     print(f"reference: encode one 128x128 image with the VAE: {encode * 1000:.1f} ms")
-    print(f"selector decision, {len(ALL_NAMES)} controllers, n = 10, K = 16: {decide * 1000:.0f} ms "
+    print(f"selector decision, {len(all_names())} controllers, n = 10, K = 16: {decide * 1000:.0f} ms "
           f"({decide / encode:.0f}x the reference)")
 
     size = vae_config.image_size
@@ -84,7 +84,7 @@ def main() -> None:
         "VAE": (fit(vae.train(), lambda b: vae.loss(images[:b])[0]), vae_config.batch_size, vae_config.epochs,
                 args.rollout_frames),
         "dynamics model (one controller)": (fit(dyn, lambda b: dyn.loss(z[:b], z[:b] + 0.1, vae, images[:b])),
-                                            dyn_config.batch_size, dyn_config.epochs, args.rollout_frames // len(ALL_NAMES)),
+                                            dyn_config.batch_size, dyn_config.epochs, args.rollout_frames // len(all_names())),
         "goal score (one camera)": (fit(goal, lambda b: goal.loss(images[:b], torch.rand(b))), goal_config.batch_size,
                                     goal_config.epochs, 2 * args.demo_frames),
         "CNN policy": (fit(cnn, lambda b: cnn.loss(images[:b], torch.randn(b, cnn.config.state_dim),

@@ -21,10 +21,9 @@ from enum import Enum
 import numpy as np
 import torch
 
-from policies.base import Controller
-from policies.planning import VELOCITY_LIMIT
-from tasks.gear_kinematics import JOINT_HIGH, JOINT_LOW
-from tasks.gear_kinematics import plate_direction
+from policy_composer.policies.base import Controller
+from policy_composer.policies.planning import VELOCITY_LIMIT
+from policy_composer.tasks.gear_kinematics import JOINT_HIGH, JOINT_LOW, plate_direction
 
 GRIPPER_OPEN, GRIPPER_CLOSED = 1.0, -1.0
 CARRY_CLEARANCE = 0.03  # gear bottom above the peg top at the pre-insertion pose (m)
@@ -88,7 +87,7 @@ class LeftArmController(Controller):
 
     obs_keys = ("extra.state",)
     action_kind = "joint_targets"
-    subtask = None  # the policies.subtasks.Subtask it serves: guards the release, says how to back off
+    subtask = None  # the policy_composer.policies.subtasks.Subtask it serves: guards the release, says how to back off
     ik = None  # a LeftArmIK (subclasses that serve a subtask set it)
 
     def __init__(self, env):

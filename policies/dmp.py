@@ -1,6 +1,6 @@
 """Dynamic movement primitive controllers (paper: DMP), learned from the motion planner's trajectories.
 
-For each subtask, every movement between two of its waypoints (`policies.subtasks`) gets a joint-space DMP
+For each subtask, every movement between two of its waypoints (`policy_composer.policies.subtasks`) gets a joint-space DMP
 (`movement_primitives`), fitted to the planner's trajectories for that movement over several episodes (the
 forcing-term weights averaged). At run time the DMP is configured with the new episode's start (the arm's
 joints) and goal (the waypoint's IK solution) and rolled out: no planner and no collision checks, so a DMP
@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from policies.arm import Outcome, Segment, run_activation
-from policies.planning import VELOCITY_LIMIT, time_parameterize
-from policies.subtasks import SUBTASKS, SubtaskController, Waypoint
+from policy_composer.policies.arm import Outcome, Segment, run_activation
+from policy_composer.policies.planning import VELOCITY_LIMIT, time_parameterize
+from policy_composer.policies.subtasks import SUBTASKS, SubtaskController, Waypoint
 
 MIN_DEMO_STEPS = 5  # shorter movements (a few mm of alignment) are not worth a DMP: they go straight in joint space
 
@@ -61,7 +61,7 @@ class DMPLibrary:
                                                         "demonstrations": self.demonstrations}, indent=1))
 
     @classmethod
-    def load(cls, directory: str | Path) -> "DMPLibrary":
+    def load(cls, directory: str | Path) -> DMPLibrary:
         from safetensors.numpy import load_file
 
         directory = Path(directory)
@@ -138,7 +138,7 @@ def fit_dmp_library(env, seeds: list[int], config: DMPConfig | None = None, prog
     """Run the motion planner through the full task on each seed and fit a DMP to each of its movements."""
     from tqdm import tqdm
 
-    from policies.motion_planning import MotionPlanningController
+    from policy_composer.policies.motion_planning import MotionPlanningController
 
     config = config or DMPConfig(dt=1.0 / float(env.unwrapped.control_freq))
     demos: dict[str, list[list[np.ndarray | None]]] = {n: [] for n in SUBTASKS}
@@ -168,3 +168,8 @@ def fit_dmp_library(env, seeds: list[int], config: DMPConfig | None = None, prog
             library.primitives[name].append(fit_primitive(movement, config) if len(movement) > len(episodes) // 2 else None)
     return library
 
+
+
+def build(env, subtask, library: DMPLibrary, max_grasp_offset: float) -> DMPController:
+    """The registry's builder: one subtask's controller from the fitted library."""
+    return DMPController(env, subtask, library, max_grasp_offset=max_grasp_offset)

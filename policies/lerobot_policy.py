@@ -13,10 +13,18 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from policies.cnn.controller import check_camera
-from policy_composer.recording.frames import to_model_image
-from policies.subtasks import SUBTASKS, LearnedController, Subtask
-from tasks.gear_assembly import ACTION_NAMES, STATE_NAMES
+from policy_composer.data.frames import to_model_image
+from policy_composer.policies.subtasks import SUBTASKS, LearnedController, Subtask, check_camera
+from policy_composer.tasks.spec import ACTION_NAMES, STATE_NAMES
+
+
+def lerobot_cameras(path: str | Path) -> tuple[str, ...]:
+    """The cameras a LeRobot checkpoint reads, from its config (without loading the policy)."""
+    import json
+
+    config = Path(path) / "config.json"
+    features = json.loads(config.read_text()).get("input_features", {}) if config.is_file() else {}
+    return tuple(k.removeprefix("observation.images.") for k in features if k.startswith("observation.images."))
 
 
 class LeRobotPolicyController(LearnedController):

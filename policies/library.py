@@ -1,27 +1,23 @@
 """The controller library of GearAssembly-v1: every controller by name, built from its trained models.
 
-Names are `KIND_SUBTASK` (mp_pick, dmp_move, cnn_insert, ...). The selector, the per-controller table and the
-dataset recipes all build their controllers here, so a name means the same controller everywhere.
+Names are `KIND_SUBTASK` (mp_pick, dmp_move, cnn_insert, ...) for the registered kinds (`registry`), plus one
+controller per LeRobot checkpoint the user brings. The selector, Table I and the dataset recipes all build their
+controllers here, so a name means the same controller everywhere.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
-from policies.base import Controller
+from policy_composer.policies.base import Controller
+from policy_composer.policies.registry import LibraryError, get_kind, kind_of, kinds
 
-# Which subtasks each kind has a controller for.
-KINDS: dict[str, tuple[str, ...]] = {"mp": ("pick", "move", "insert"), "dmp": ("pick", "move", "insert"),
-                                     "cnn": ("insert",)}
-ALL_NAMES = tuple(f"{kind}_{s}" for kind, subtasks in KINDS.items() for s in subtasks)
 # Bumped when the controllers behave differently, so that stored runs of the old ones are not reused.
 # 2: an insertion that would let the gear go on top of the peg backs off with it to the pre-insertion pose.
 LIBRARY_REVISION = 2
 
-
-class LibraryError(ValueError):
-    """A controller name or kind the library does not have."""
+__all__ = ["LIBRARY_REVISION", "LeRobotSource", "LibraryError", "LibrarySources", "all_names", "build_library",
+           "cameras_needed", "names_of_kind"]
 
 
 @dataclass(frozen=True)
@@ -41,70 +37,69 @@ class LeRobotSource:
 class LibrarySources:
     """Where the learned controllers' models are, and how the planned ones perceive the gear."""
 
-    dmp: str = "results/models/dmp"
-    cnn: str = "results/models/cnn_insert"
+    models: dict[str, str] = field(default_factory=dict)  # kind name -> model path (default: the kind's own)
     lerobot: tuple[LeRobotSource, ...] = field(default_factory=tuple)
     max_grasp_offset: float = 0.012  # the pick-up's perception error along the fingers (m)
 
+    def model_path(self, kind: str) -> str | None:
+        return self.models.get(kind, get_kind(kind).model_path)
+
+
+def all_names(sources: LibrarySources | None = None) -> tuple[str, ...]:
+    """Every controller of the registered kinds, then the LeRobot checkpoints'."""
+    lerobot = tuple(s.controller_name for s in sources.lerobot) if sources else ()
+    return tuple(n for k in kinds().values() for n in k.controller_names) + lerobot
+
 
 def names_of_kind(kind: str) -> tuple[str, ...]:
-    if kind.lower() not in KINDS:
-        raise LibraryError(f"unknown controller kind {kind!r}; the library has {', '.join(k.upper() for k in KINDS)}")
-    return tuple(f"{kind.lower()}_{s}" for s in KINDS[kind.lower()])
+    return get_kind(kind).controller_names
+
+
+class _Models:
+    """Each kind's trained model, loaded once however many of its controllers are built."""
+
+    def __init__(self, sources: LibrarySources):
+        self.sources, self.loaded = sources, {}
+
+    def __getitem__(self, kind) -> object:
+        if kind.load is None:
+            return None
+        if kind.name not in self.loaded:
+            self.loaded[kind.name] = kind.function("load")(self.sources.model_path(kind.name))
+        return self.loaded[kind.name]
 
 
 def cameras_needed(names, sources: LibrarySources) -> tuple[str, ...]:
     """The cameras the named controllers read (an env must render them)."""
-    import json
-    from pathlib import Path
+    from policy_composer.policies.lerobot_policy import lerobot_cameras
 
-    cameras = []
-    if any(n.startswith("cnn_") for n in names):
-        from policies.cnn.train import load_cnn_policy
-
-        cameras.append(load_cnn_policy(sources.cnn).config.camera)
+    models, cameras = _Models(sources), []
+    for kind in dict.fromkeys(k for k in map(kind_of, names) if k is not None and k.cameras is not None):
+        cameras += kind.function("cameras")(models[kind])
     for source in sources.lerobot:
-        config = Path(source.path) / "config.json"
-        if source.controller_name in names and config.is_file():
-            features = json.loads(config.read_text()).get("input_features", {})
-            cameras += [k.removeprefix("observation.images.") for k in features if k.startswith("observation.images.")]
+        if source.controller_name in names:
+            cameras += lerobot_cameras(source.path)
     return tuple(dict.fromkeys(cameras))
 
 
 def build_library(env, names=None, sources: LibrarySources | None = None) -> dict[str, Controller]:
-    """The named controllers (default: every one of ALL_NAMES plus the lerobot sources), ready to start in `env`."""
-    from policies.subtasks import SUBTASKS
+    """The named controllers (default: every one of `all_names(sources)`), ready to start in `env`."""
+    from policy_composer.policies.subtasks import SUBTASKS
 
     sources = sources or LibrarySources()
     lerobot = {s.controller_name: s for s in sources.lerobot}
-    names = tuple(names) if names is not None else ALL_NAMES + tuple(lerobot)
-    library: dict[str, Controller] = {}
-    loaded: dict[str, object] = {}
+    names = tuple(names) if names is not None else all_names(sources)
+    models, library = _Models(sources), {}
     for name in names:
         if name in lerobot:
-            from policies.lerobot_policy import LeRobotPolicyController
+            from policy_composer.policies.lerobot_policy import LeRobotPolicyController
 
             src = lerobot[name]
             library[name] = LeRobotPolicyController(env, src.path, SUBTASKS[src.subtask], name=name)
             continue
-        if name not in ALL_NAMES:
-            raise LibraryError(f"no controller named {name!r}; the library has {', '.join(ALL_NAMES + tuple(lerobot))}")
-        kind, subtask = name.split("_", 1)
-        if kind == "mp":
-            from policies.motion_planning import MotionPlanningController
-
-            library[name] = MotionPlanningController(env, SUBTASKS[subtask], max_grasp_offset=sources.max_grasp_offset)
-        elif kind == "dmp":
-            from policies.dmp import DMPController, DMPLibrary
-
-            if "dmp" not in loaded:
-                loaded["dmp"] = DMPLibrary.load(Path(sources.dmp))
-            library[name] = DMPController(env, SUBTASKS[subtask], loaded["dmp"], max_grasp_offset=sources.max_grasp_offset)
-        else:
-            from policies.cnn.controller import CNNController
-            from policies.cnn.train import load_cnn_policy
-
-            if "cnn" not in loaded:
-                loaded["cnn"] = load_cnn_policy(sources.cnn)
-            library[name] = CNNController(env, loaded["cnn"], SUBTASKS[subtask])
+        kind = kind_of(name)
+        if kind is None:
+            raise LibraryError(f"no controller named {name!r}; the library has {', '.join(all_names(sources))}")
+        subtask = SUBTASKS[name.removeprefix(f"{kind.name}_")]
+        library[name] = kind.function("build")(env, subtask, models[kind], sources.max_grasp_offset)
     return library

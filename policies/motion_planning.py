@@ -1,7 +1,7 @@
 """Motion-planning controllers (paper: MP): pick the gear up, carry it to the peg, insert it open loop.
 
 Free-space motions are planned in joint space with OMPL's RRT-Connect against the scene's collision model
-(`policies.planning`) and time-parameterised to the joint velocity limits; approach, lift, descent and
+(`policy_composer.policies.planning`) and time-parameterised to the joint velocity limits; approach, lift, descent and
 retreat are straight TCP lines solved by IK. The plan is made once, when the controller starts, from the
 scene as it is then: the controllers are open loop, as the paper's planner was. The pick-up perceives the
 gear's position with an error along the fingers, so the gear sits in the hand off-centre by up to
@@ -15,9 +15,15 @@ import numpy as np
 import pinocchio as pin
 import sapien
 
-from policies.arm import Segment, np0
-from policies.planning import HeldObject, PlanningError, SceneCollisionModel, plan_rrt_connect, time_parameterize
-from policies.subtasks import SubtaskController, Waypoint, tcp_line
+from policy_composer.policies.arm import Segment, np0
+from policy_composer.policies.planning import (
+    HeldObject,
+    PlanningError,
+    SceneCollisionModel,
+    plan_rrt_connect,
+    time_parameterize,
+)
+from policy_composer.policies.subtasks import SubtaskController, Waypoint, tcp_line
 
 
 class MotionPlanningController(SubtaskController):
@@ -68,3 +74,8 @@ class MotionPlanningController(SubtaskController):
         spec, h = self.scene.spec, self.scene.grasp_height
         return HeldObject(spec.outer_radius, spec.height, tcp * pin.SE3(np.eye(3), np.array([0, 0, h - spec.height / 2])))
 
+
+
+def build(env, subtask, model, max_grasp_offset: float) -> MotionPlanningController:
+    """The registry's builder (nothing trained: `model` is None)."""
+    return MotionPlanningController(env, subtask, max_grasp_offset=max_grasp_offset)

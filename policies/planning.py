@@ -15,10 +15,10 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from tasks.gear_assembly import LEFT_BASE, RIGHT_BASE
-from tasks.gear_kinematics import JOINT_HIGH, JOINT_LOW, PANDA_DIR
-from tasks.gear_kinematics import PANDA_SRDF as SRDF
-from tasks.gear_kinematics import PANDA_URDF as URDF
+from policy_composer.tasks.gear_assembly import LEFT_BASE, RIGHT_BASE
+from policy_composer.tasks.gear_kinematics import JOINT_HIGH, JOINT_LOW, PANDA_DIR
+from policy_composer.tasks.gear_kinematics import PANDA_SRDF as SRDF
+from policy_composer.tasks.gear_kinematics import PANDA_URDF as URDF
 
 # Franka Panda joint velocity limits (rad/s), as in the URDF.
 VELOCITY_LIMIT = np.array([2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61])
@@ -88,7 +88,7 @@ class SceneCollisionModel:
         right_base = _se3(RIGHT_BASE)
         for i, g in enumerate(self._robot_geom.geometryObjects):
             add(f"right_{g.name}", g.geometry, right_base * self._fk_gdata.oMg[i])
-        # The peg module the right hand holds (see tasks.gear_geometry.build_peg_module).
+        # The peg module the right hand holds (see policy_composer.tasks.gear_geometry.build_peg_module).
         module = _se3(peg_module_pose)
         hx, hy, hz = spec.plate_half_size
         add("plate", coal.Box(2 * hx, 2 * hy, 2 * hz),

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from policies.base import Controller
-from tasks.random_walk import LEFT, RIGHT
+from policy_composer.policies.base import Controller
+from policy_composer.tasks.random_walk import LEFT, RIGHT
 
 
 @dataclass(frozen=True)

@@ -13,10 +13,19 @@ from dataclasses import dataclass
 import numpy as np
 import sapien
 
-from policies.arm import (CARRY_CLEARANCE, GRIPPER_CLOSED, GRIPPER_OPEN, RELEASE_HEIGHT, LeftArmController, SceneGeometry,
-                          ScriptedController, Segment, np0)
-from policies.planning import PlanningError
-from tasks.gear_kinematics import LeftArmIK
+from policy_composer.policies.arm import (
+    CARRY_CLEARANCE,
+    GRIPPER_CLOSED,
+    GRIPPER_OPEN,
+    RELEASE_HEIGHT,
+    LeftArmController,
+    SceneGeometry,
+    ScriptedController,
+    Segment,
+    np0,
+)
+from policy_composer.policies.planning import PlanningError
+from policy_composer.tasks.gear_kinematics import LeftArmIK
 
 PRE_GRASP_HEIGHT = 0.08  # TCP above the grasp point before descending (m)
 LIFT_HEIGHT = 0.12  # how far the pick-up lifts the gear (m)
@@ -202,6 +211,14 @@ class SubtaskController(ScriptedController):
 
     def connect(self, obs, waypoints: list[Waypoint], seed: int | None) -> list[Segment]:
         raise NotImplementedError
+
+
+def check_camera(env, camera: str, who: str) -> None:
+    if camera not in env.camera_names:
+        raise ValueError(f"{who} reads camera {camera!r}, which this env does not render (it has "
+                         f"{list(env.camera_names)}); make the env with that camera")
+    if "rgb" not in env.obs_mode:
+        raise ValueError(f"{who} needs camera images: make the env with obs_mode='rgb', not {env.obs_mode!r}")
 
 
 class LearnedController(LeftArmController):

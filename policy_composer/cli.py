@@ -8,15 +8,40 @@ import sys
 import time
 from pathlib import Path
 
+from policy_composer.arguments import add_config_options, config_from
+from policy_composer.demo import PROFILES
+from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
+from policy_composer.policies.library import LibrarySources
+from policy_composer.policies.registry import kinds
+from policy_composer.selector.configuration import ComposeConfig, DynamicsConfig, GoalScoreConfig, VAEConfig
+from policy_composer.tasks.spec import CAMERA_NAMES, EnvSettings
+
+DEFAULT_GRASP_OFFSET_MM = LibrarySources.max_grasp_offset * 1000  # the expert's and the pick-up's
+MODELS = Path("results/models")
+WORLD = str(MODELS / "world")  # the world model and goal scorers' folder
+
+
+def _dataset(recipe: str) -> str:
+    return str(Path("datasets") / recipe)
+
+
+def _sources(args: argparse.Namespace):
+    """The library's model sources from the per-kind flags (`model_options`) and --lerobot."""
+    from policy_composer.policies.library import LeRobotSource
+
+    return LibrarySources(models={k.name: getattr(args, k.name) for k in kinds().values() if k.model_path},
+                          lerobot=tuple(LeRobotSource(*spec.split(":", 1)) for spec in getattr(args, "lerobot", ())),
+                          max_grasp_offset=getattr(args, "grasp_offset", DEFAULT_GRASP_OFFSET_MM) / 1000.0)
+
 
 def _make_env(obs_mode: str, args: argparse.Namespace, cameras: tuple[str, ...] | None = None, **kwargs):
-    from policy_composer.rollout import make_env
+    from policy_composer.tasks.rollout import make_env
 
     return make_env(obs_mode, args.resolution, args.clearance, cameras, **kwargs)
 
 
 def _expert(env, args: argparse.Namespace):
-    from tasks.gear_expert import ExpertConfig, GearAssemblyExpert
+    from policy_composer.tasks.gear_expert import GearAssemblyExpert
 
     return GearAssemblyExpert(env, ExpertConfig(grasp_offset=args.grasp_offset / 1000.0,
                                                 closed_loop=not getattr(args, "open_loop", False)))
@@ -41,7 +66,7 @@ def cmd_expert(args: argparse.Namespace) -> int:
     import imageio
     from tqdm import tqdm
 
-    from policy_composer.rollout import episode_limit, run_episode
+    from policy_composer.tasks.rollout import episode_limit, run_episode
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -66,7 +91,7 @@ def cmd_evaluate_expert(args: argparse.Namespace) -> int:
     """Full-task success of the scripted expert over many seeds (state observations: no rendering)."""
     from tqdm import tqdm
 
-    from policy_composer.rollout import run_episode
+    from policy_composer.tasks.rollout import run_episode
 
     env = _make_env("state_dict", args)
     expert = _expert(env, args)
@@ -89,16 +114,15 @@ def cmd_record(args: argparse.Namespace) -> int:
     """Record a recipe's dataset (see datasets/recipes/) into a LeRobotDataset."""
     from dataclasses import replace
 
-    from policies.library import LeRobotSource, LibrarySources
-    from policy_composer.recording.catalog import format_summary, summarize
-    from policy_composer.recording.recipes import RecipeError, load_recipe
-    from policy_composer.recording.record import EnvSettings, record_recipe
+    from policy_composer.data.catalog import format_summary, summarize
+    from policy_composer.data.recipes import RecipeError, load_recipe
+    from policy_composer.record import recipe_controllers, record_recipe
 
     recipe = load_recipe(args.recipe)
-    lerobot = tuple(LeRobotSource(*spec.split(":", 1)) for spec in args.lerobot)
+    sources = _sources(args)
     if args.controllers:
         chosen = tuple(args.controllers.split(","))
-        known = (*recipe.controllers, *(s.controller_name for s in lerobot))
+        known = (*recipe_controllers(recipe), *(s.controller_name for s in sources.lerobot))
         if recipe.driver != "controllers" or set(chosen) - set(known):
             raise RecipeError(f"--controllers must name controllers of recipe {recipe.name} or --lerobot ones "
                               f"({', '.join(known) or 'it runs none'}), not {', '.join(chosen)}")
@@ -106,8 +130,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     root = Path(args.root) if args.root else Path("datasets") / recipe.name
     try:
         record_recipe(recipe, root, episodes=args.episodes, seed=args.seed, resume=args.resume,
-                      settings=EnvSettings(resolution=args.resolution, clearance_mm=args.clearance),
-                      sources=LibrarySources(dmp=args.dmp, cnn=args.cnn, lerobot=lerobot))
+                      settings=EnvSettings(resolution=args.resolution, clearance_mm=args.clearance), sources=sources)
     except KeyboardInterrupt:
         print(f"\ninterrupted: every finished episode is saved in {root}; continue with --resume", file=sys.stderr)
         return 130
@@ -116,14 +139,14 @@ def cmd_record(args: argparse.Namespace) -> int:
 
 
 def cmd_dataset_info(args: argparse.Namespace) -> int:
-    from policy_composer.recording.catalog import format_summary, summarize
+    from policy_composer.data.catalog import format_summary, summarize
 
     print(format_summary(summarize(args.path)))
     return 0
 
 
 def cmd_dataset_push(args: argparse.Namespace) -> int:
-    from policy_composer.recording.catalog import HubUnreachable, push_dataset
+    from policy_composer.data.catalog import HubUnreachable, push_dataset
 
     try:
         url = push_dataset(args.path, args.repo_id, private=args.private, branch=args.branch)
@@ -155,13 +178,10 @@ def cmd_train_policy(args: argparse.Namespace) -> int:
     """Behaviour-clone the CNN policy on an insertion dataset."""
     import torch
 
-    from policies.cnn.configuration_cnn import CNNPolicyConfig
-    from policies.cnn.train import train_cnn_policy
+    from policy_composer.policies.cnn.train import train_cnn_policy
 
     torch.set_num_threads(args.threads)
-    config = CNNPolicyConfig(camera=args.camera, backbone=args.backbone, epochs=args.epochs, image_size=args.image_size,
-                             num_mixtures=args.mixtures, batch_size=args.batch_size, seed=args.seed,
-                             action_space=args.action_space, shift=args.shift, proprioception=args.proprioception)
+    config = config_from(args, CNNPolicyConfig)
     t0 = time.time()
     _, losses = train_cnn_policy(args.dataset, config, out=args.out)
     print(f"trained {args.out} in {time.time() - t0:.0f} s: nll {losses[0]:.3f} -> {losses[-1]:.3f} over {len(losses)} epochs")
@@ -170,7 +190,7 @@ def cmd_train_policy(args: argparse.Namespace) -> int:
 
 def cmd_train_dmp(args: argparse.Namespace) -> int:
     """Fit the DMP library to the motion planner's trajectories."""
-    from policies.dmp import fit_dmp_library
+    from policy_composer.policies.dmp import fit_dmp_library
 
     env = _make_env("state_dict", args)
     t0 = time.time()
@@ -183,10 +203,9 @@ def cmd_train_dmp(args: argparse.Namespace) -> int:
 
 def cmd_evaluate_controllers(args: argparse.Namespace) -> int:
     """Paper Table I, rows MP, DMP and CNN."""
-    from policies.library import LibrarySources
     from policy_composer.controller_table import evaluate_table, write_table
 
-    sources = LibrarySources(dmp=args.dmp, cnn=args.cnn, max_grasp_offset=args.grasp_offset / 1000.0)
+    sources = _sources(args)
     rows = evaluate_table(args.kinds.split(","), sources, args.trials, args.seed, args.resolution, args.clearance)
     for kind, row in rows.items():
         print(f"{kind}: " + ", ".join(f"{c} {cell}" for c, cell in row.items()))
@@ -198,14 +217,11 @@ def cmd_train_world_model(args: argparse.Namespace) -> int:
     """The VAE and one dynamics model per controller (paper: Controller Dynamics Modelling)."""
     import torch
 
-    from selector.configuration import DynamicsConfig, VAEConfig
-    from selector.train import train_world_model
+    from policy_composer.selector.train import train_world_model
 
     torch.set_num_threads(args.threads)
     timings = train_world_model(
-        args.rollouts, args.demos, args.out,
-        VAEConfig(camera=args.camera, latent_dim=args.latent_dim, epochs=args.vae_epochs, image_size=args.image_size),
-        DynamicsConfig(frame_skip=args.frame_skip, epochs=args.dynamics_epochs, num_mixtures=args.mixtures),
+        args.rollouts, args.demos, args.out, config_from(args, VAEConfig), config_from(args, DynamicsConfig),
         controllers=args.controllers.split(",") if args.controllers else None, reuse_vae=args.reuse_vae)
     for what, seconds in timings.items():
         print(f"trained {what} in {seconds:.0f} s")
@@ -216,11 +232,10 @@ def cmd_train_goal_score(args: argparse.Namespace) -> int:
     """One goal scorer per camera on the training full-task demos (paper: Goal Score Evaluation)."""
     import torch
 
-    from selector.configuration import GoalScoreConfig
-    from selector.train import train_goal_scores
+    from policy_composer.selector.train import train_goal_scores
 
     torch.set_num_threads(args.threads)
-    config = GoalScoreConfig(epochs=args.epochs, num_mixtures=args.mixtures, image_size=args.image_size)
+    config = config_from(args, GoalScoreConfig)
     for what, seconds in train_goal_scores(args.demos, args.out, tuple(args.cameras.split(",")), config).items():
         print(f"trained {what} in {seconds:.0f} s")
     return 0
@@ -228,7 +243,7 @@ def cmd_train_goal_score(args: argparse.Namespace) -> int:
 
 def cmd_evaluate_goal_score(args: argparse.Namespace) -> int:
     """Each camera's goal score on the held-out full-task demos: curves and rank correlation."""
-    from selector.evaluate import evaluate_goal_scores
+    from policy_composer.selector.evaluate import evaluate_goal_scores
 
     metrics = evaluate_goal_scores(args.models, args.demos, args.out, tuple(args.cameras.split(",")))
     for camera, m in metrics.items():
@@ -239,15 +254,9 @@ def cmd_evaluate_goal_score(args: argparse.Namespace) -> int:
 
 def cmd_compose(args: argparse.Namespace) -> int:
     """The selector composes the whole library in GearAssembly-v1 rollouts (paper Table I, composed row)."""
-    from policies.library import LeRobotSource, LibrarySources
     from policy_composer.composition import compose_library
-    from selector.compose import ComposeConfig
 
-    lerobot = tuple(LeRobotSource(*spec.split(":", 1)) for spec in args.lerobot)
-    sources = LibrarySources(dmp=args.dmp, cnn=args.cnn, lerobot=lerobot, max_grasp_offset=args.grasp_offset / 1000.0)
-    config = ComposeConfig(horizon=args.horizon, samples=args.samples, reselect_every=args.reselect_every,
-                           max_failures=args.max_failures)
-    episodes = compose_library(args.models, sources, config, list(range(args.seed, args.seed + args.episodes)),
+    episodes = compose_library(args.models, _sources(args), config_from(args, ComposeConfig), list(range(args.seed, args.seed + args.episodes)),
                                Path(args.out), videos=args.videos, resolution=args.resolution,
                                clearance_mm=args.clearance, knock_out_step=args.knock_out_step, resume=args.resume)
     ok = sum(e.success for e in episodes)
@@ -257,7 +266,7 @@ def cmd_compose(args: argparse.Namespace) -> int:
 
 def cmd_dataset_drop(args: argparse.Namespace) -> int:
     """Remove a controller's rollouts (then record them again with `record gear-controller-rollouts --resume`)."""
-    from policy_composer.recording.catalog import drop_controller
+    from policy_composer.data.catalog import drop_controller
 
     print(f"removed {drop_controller(args.path, args.controller)} episodes of {args.controller} from {args.path}")
     return 0
@@ -266,15 +275,29 @@ def cmd_dataset_drop(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="policy-composer", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
+    cameras = ",".join(CAMERA_NAMES)
 
-    def env_options(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--resolution", type=int, default=128, help="camera width and height in pixels")
-        p.add_argument("--clearance", type=float, default=2.0, help="radial clearance between peg and hole, mm")
-        p.add_argument("--grasp-offset", type=float, default=12.0, help="max grasp offset of the gear in the gripper, mm")
+    def env_options(p: argparse.ArgumentParser, grasp: bool = True) -> None:
+        p.add_argument("--resolution", type=int, default=EnvSettings.resolution, help="camera width and height in pixels")
+        p.add_argument("--clearance", type=float, default=EnvSettings.clearance_mm,
+                       help="radial clearance between peg and hole, mm")
+        if grasp:
+            p.add_argument("--grasp-offset", type=float, default=DEFAULT_GRASP_OFFSET_MM,
+                           help="max grasp offset of the gear in the gripper, mm")
         p.add_argument("--seed", type=int, default=0, help="first seed")
 
+    def model_options(p: argparse.ArgumentParser) -> None:
+        """--KIND for every registered kind that loads a trained model, and --lerobot checkpoints."""
+        for kind in kinds().values():
+            if kind.model_path:
+                p.add_argument(f"--{kind.name}", default=kind.model_path,
+                               help=f"{kind.label} model ({kind.train_command})")
+        p.add_argument("--lerobot", action="append", default=[], metavar="PATH:SUBTASK",
+                       help="a lerobot checkpoint as controller lerobot_SUBTASK for SUBTASK (it needs its own "
+                            "dynamics model to be composed)")
+
     demo = sub.add_parser("demo", help="the main job: record, train, evaluate, compose, the MDP, the report")
-    demo.add_argument("--profile", default="quick", choices=("quick", "paper", "smoke"),
+    demo.add_argument("--profile", default="quick", choices=tuple(PROFILES),
                       help="quick: 30 min on 2 CPU cores; paper: the paper's sizes; smoke: every stage, tiny (tests)")
     demo.add_argument("--out", default="results", help="report.md, report.html and the stages' outputs (pipeline/)")
     demo.set_defaults(func=cmd_demo)
@@ -294,84 +317,66 @@ def build_parser() -> argparse.ArgumentParser:
     ev_expert.set_defaults(func=cmd_evaluate_expert)
     ev_ctrl = ev_sub.add_parser("controllers", help="each controller kind on each subtask (paper Table I)")
     env_options(ev_ctrl)
+    labels = ",".join(k.label for k in kinds().values())
     ev_ctrl.add_argument("--trials", type=int, default=10)
-    ev_ctrl.add_argument("--kinds", default="MP,DMP,CNN", help="comma-separated: MP, DMP, CNN")
-    ev_ctrl.add_argument("--dmp", default="results/models/dmp", help="DMP library folder (policy-composer train dmp)")
-    ev_ctrl.add_argument("--cnn", default="results/models/cnn_insert", help="CNN checkpoint (policy-composer train policy)")
+    ev_ctrl.add_argument("--kinds", default=labels, help=f"comma-separated kinds (default: {labels})")
+    model_options(ev_ctrl)
     ev_ctrl.add_argument("--out", default="results/controllers")
     ev_ctrl.set_defaults(func=cmd_evaluate_controllers)
 
     train = sub.add_parser("train", help="train the library's learned controllers")
     tr_sub = train.add_subparsers(dest="what", required=True)
     tr_policy = tr_sub.add_parser("policy", help="behaviour-clone the CNN + MDN policy (cnn_insert)")
-    tr_policy.add_argument("--dataset", default="datasets/gear-insertion-demos")
-    tr_policy.add_argument("--camera", default="left_forearm", choices=("head", "left_forearm", "right_forearm"))
-    tr_policy.add_argument("--backbone", default="spatial", choices=("spatial", "small", "resnet18"))
-    tr_policy.add_argument("--epochs", type=int, default=200)
-    tr_policy.add_argument("--image-size", type=int, default=64)
-    tr_policy.add_argument("--mixtures", type=int, default=24)
-    tr_policy.add_argument("--action-space", default="hand", choices=("hand", "joint"),
-                           help="hand: next TCP displacement in the hand frame (IK to joint targets); joint: joint-target deltas")
-    tr_policy.add_argument("--proprioception", default="gripper", choices=("gripper", "arm"),
-                           help="what the policy reads besides its image: the gripper width, or the arm's joints too")
-    tr_policy.add_argument("--shift", type=int, default=4, help="random-shift augmentation in pixels (0: none)")
-    tr_policy.add_argument("--batch-size", type=int, default=120)
-    tr_policy.add_argument("--seed", type=int, default=0)
+    tr_policy.add_argument("--dataset", default=_dataset("gear-insertion-demos"))
+    add_config_options(tr_policy, CNNPolicyConfig, {
+        "camera": "camera", "backbone": "backbone", "epochs": "epochs", "image_size": "image-size",
+        "num_mixtures": "mixtures", "action_space": "action-space", "proprioception": "proprioception",
+        "shift": "shift", "batch_size": "batch-size", "seed": "seed"})
     tr_policy.add_argument("--threads", type=int, default=2)
-    tr_policy.add_argument("--out", default="results/models/cnn_insert")
+    tr_policy.add_argument("--out", default=kinds()["cnn"].model_path)
     tr_policy.set_defaults(func=cmd_train_policy)
     tr_dmp = tr_sub.add_parser("dmp", help="fit the DMPs to the motion planner's trajectories")
-    env_options(tr_dmp)
+    env_options(tr_dmp, grasp=False)
     tr_dmp.add_argument("--episodes", type=int, default=5)
     tr_dmp.set_defaults(seed=100)
-    tr_dmp.add_argument("--out", default="results/models/dmp")
+    tr_dmp.add_argument("--out", default=kinds()["dmp"].model_path)
     tr_dmp.set_defaults(func=cmd_train_dmp)
 
     tr_world = tr_sub.add_parser("world-model", help="the VAE and one latent dynamics model per controller")
-    tr_world.add_argument("--rollouts", default="datasets/gear-controller-rollouts")
-    tr_world.add_argument("--demos", default="datasets/gear-full-task-demos")
-    tr_world.add_argument("--camera", default="head", choices=("head", "left_forearm", "right_forearm"))
-    tr_world.add_argument("--image-size", type=int, default=64)
-    tr_world.add_argument("--latent-dim", type=int, default=32)
-    tr_world.add_argument("--vae-epochs", type=int, default=30)
-    tr_world.add_argument("--dynamics-epochs", type=int, default=60)
-    tr_world.add_argument("--frame-skip", type=int, default=5, help="control steps per dynamics step")
-    tr_world.add_argument("--mixtures", type=int, default=5, help="mixture components of each dynamics model")
+    tr_world.add_argument("--rollouts", default=_dataset("gear-controller-rollouts"))
+    tr_world.add_argument("--demos", default=_dataset("gear-full-task-demos"))
+    add_config_options(tr_world, VAEConfig, {"camera": "camera", "image_size": "image-size", "latent_dim": "latent-dim",
+                                             "epochs": "vae-epochs"})
+    add_config_options(tr_world, DynamicsConfig, {"epochs": "dynamics-epochs", "frame_skip": "frame-skip",
+                                                  "num_mixtures": "mixtures"})
     tr_world.add_argument("--controllers", default=None, help="comma-separated (default: every controller recorded)")
     tr_world.add_argument("--reuse-vae", action="store_true", help="keep the VAE in --out; train only dynamics models")
     tr_world.add_argument("--threads", type=int, default=2)
-    tr_world.add_argument("--out", default="results/models/world")
+    tr_world.add_argument("--out", default=WORLD)
     tr_world.set_defaults(func=cmd_train_world_model)
     tr_goal = tr_sub.add_parser("goal-score", help="one goal scorer per camera on the full-task demos")
-    tr_goal.add_argument("--demos", default="datasets/gear-full-task-demos")
-    tr_goal.add_argument("--cameras", default="head,left_forearm,right_forearm")
-    tr_goal.add_argument("--epochs", type=int, default=60)
-    tr_goal.add_argument("--image-size", type=int, default=64)
-    tr_goal.add_argument("--mixtures", type=int, default=24)
+    tr_goal.add_argument("--demos", default=_dataset("gear-full-task-demos"))
+    tr_goal.add_argument("--cameras", default=cameras)
+    add_config_options(tr_goal, GoalScoreConfig, {"epochs": "epochs", "image_size": "image-size",
+                                                  "num_mixtures": "mixtures"})
     tr_goal.add_argument("--threads", type=int, default=2)
-    tr_goal.add_argument("--out", default="results/models/world", help="the world-model folder (its VAE, if any, is used)")
+    tr_goal.add_argument("--out", default=WORLD, help="the world-model folder (its VAE, if any, is used)")
     tr_goal.set_defaults(func=cmd_train_goal_score)
 
     ev_goal = ev_sub.add_parser("goal-score", help="each camera's goal score on held-out full-task demos")
-    ev_goal.add_argument("--models", default="results/models/world")
-    ev_goal.add_argument("--demos", default="datasets/gear-full-task-demos")
-    ev_goal.add_argument("--cameras", default="head,left_forearm,right_forearm")
+    ev_goal.add_argument("--models", default=WORLD)
+    ev_goal.add_argument("--demos", default=_dataset("gear-full-task-demos"))
+    ev_goal.add_argument("--cameras", default=cameras)
     ev_goal.add_argument("--out", default="results/goal_score")
     ev_goal.set_defaults(func=cmd_evaluate_goal_score)
 
     compose = sub.add_parser("compose", help="the selector composes the library in GearAssembly-v1 rollouts")
     env_options(compose)
     compose.add_argument("--episodes", type=int, default=10)
-    compose.add_argument("--models", default="results/models/world", help="world-model folder (train world-model, goal-score)")
-    compose.add_argument("--dmp", default="results/models/dmp")
-    compose.add_argument("--cnn", default="results/models/cnn_insert")
-    compose.add_argument("--lerobot", action="append", default=[], metavar="PATH:SUBTASK",
-                         help="add a lerobot checkpoint as a controller for SUBTASK (needs its own dynamics model)")
-    compose.add_argument("--horizon", type=int, default=10)
-    compose.add_argument("--samples", type=int, default=16)
-    compose.add_argument("--reselect-every", type=int, default=None, help="also decide every this many control steps")
-    compose.add_argument("--max-failures", type=int, default=1,
-                         help="a controller that failed this often since the last success is not chosen again")
+    compose.add_argument("--models", default=WORLD, help="world-model folder (train world-model, goal-score)")
+    model_options(compose)
+    add_config_options(compose, ComposeConfig, {"horizon": "horizon", "samples": "samples",
+                                                "reselect_every": "reselect-every", "max_failures": "max-failures"})
     compose.add_argument("--knock-out-step", type=int, default=None,
                          help="perturbation: knock the gear out of the gripper at this control step (or when next lifted)")
     compose.add_argument("--videos", type=int, default=1, help="episodes to write a video of")
@@ -385,15 +390,10 @@ def build_parser() -> argparse.ArgumentParser:
     record.add_argument("--episodes", type=int, default=None, help="episodes the dataset should hold (default: the recipe's)")
     record.add_argument("--root", default=None, help="dataset folder (default: datasets/RECIPE)")
     record.add_argument("--resume", action="store_true", help="continue an interrupted or shorter recording")
-    record.add_argument("--resolution", type=int, default=128, help="camera width and height in pixels")
-    record.add_argument("--clearance", type=float, default=2.0, help="radial clearance between peg and hole, mm")
-    record.add_argument("--seed", type=int, default=0, help="first seed (with --resume: the dataset's next one)")
+    env_options(record, grasp=False)
     record.add_argument("--controllers", default=None,
                         help="comma-separated subset of the recipe's controllers to record (recipes that run the controllers)")
-    record.add_argument("--dmp", default="results/models/dmp", help="DMP library (recipes that run the controllers)")
-    record.add_argument("--cnn", default="results/models/cnn_insert", help="CNN checkpoint (recipes that run the controllers)")
-    record.add_argument("--lerobot", action="append", default=[], metavar="PATH:SUBTASK",
-                        help="a lerobot checkpoint as controller lerobot_SUBTASK (name it in --controllers)")
+    model_options(record)
     record.set_defaults(func=cmd_record)
 
     mdp = sub.add_parser("mdp", help="the paper's random-walk MDP experiments (19 and 100 states)")
@@ -424,11 +424,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from policies.cnn.train import CheckpointError
-    from policies.library import LibraryError
-    from policy_composer.interrupt import flag_interrupts
-    from policy_composer.recording.features import DatasetError
-    from policy_composer.recording.recipes import RecipeError
+    from policy_composer.data.features import DatasetError
+    from policy_composer.data.interrupt import flag_interrupts
+    from policy_composer.data.recipes import RecipeError
+    from policy_composer.learning.checkpoint import CheckpointError
+    from policy_composer.policies.registry import LibraryError
 
     args = build_parser().parse_args(argv)
     if args.func is not cmd_dataset_push:  # everything but an upload works offline

@@ -9,9 +9,10 @@ from pathlib import Path
 
 import numpy as np
 
-from policy_composer import interrupt
-from selector.compose import ComposeConfig, ComposedEpisode, compose_episode
-from selector.world_model import GearWorldModel
+from policy_composer.data import interrupt
+from policy_composer.selector.compose import ComposedEpisode, compose_episode
+from policy_composer.selector.configuration import ComposeConfig
+from policy_composer.selector.world_model import GearWorldModel
 
 PAPER_COMPOSED = "10/10"  # paper Table I: MP + CNN composed by the selector, full task
 
@@ -48,8 +49,8 @@ def compose_library(models: str | Path, sources, config: ComposeConfig, seeds: l
     (a `LibrarySources`), and compose on each seed in an env with the cameras they all need."""
     import torch
 
-    from policies.library import build_library, cameras_needed
-    from policy_composer.rollout import make_env
+    from policy_composer.policies.library import build_library, cameras_needed
+    from policy_composer.tasks.rollout import make_env
 
     torch.set_num_threads(1)
     world = GearWorldModel.load(models)

@@ -10,11 +10,11 @@ peg, the gear off-centre by its grasp offset.
 from __future__ import annotations
 
 import csv
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
-from policies.arm import Outcome, run_activation
+from policy_composer.policies.arm import Outcome, run_activation
 
 SUBTASK_COLUMNS = ("pick", "move", "insert", "full")
 START_PHASE = {"move": "carry", "insert": "insert"}  # the expert phase at which a subtask's start state is taken
@@ -43,8 +43,8 @@ def start_state(env, seed: int, subtask: str, max_steps: int = 300):
 
     The expert's state there may still fall outside the subtask's initiation set (a gear tilted in the grasp);
     such a seed is replaced by seed + 1000 (up to five times), so every trial starts where the subtask may."""
-    from policies.arm import SceneGeometry
-    from policies.subtasks import SUBTASKS
+    from policy_composer.policies.arm import SceneGeometry
+    from policy_composer.policies.subtasks import SUBTASKS
 
     if subtask in ("pick", "full"):
         return env.reset(seed=seed)[0]
@@ -57,7 +57,7 @@ def start_state(env, seed: int, subtask: str, max_steps: int = 300):
 
 def _expert_until(env, seed: int, subtask: str, max_steps: int):
     """Run the open-loop expert from the reset until its phase is where `subtask` starts (None if it never is)."""
-    from tasks.gear_expert import ExpertConfig, GearAssemblyExpert
+    from policy_composer.tasks.gear_expert import ExpertConfig, GearAssemblyExpert
 
     obs, _ = env.reset(seed=seed)
     expert = GearAssemblyExpert(env, ExpertConfig(closed_loop=False))
@@ -73,7 +73,7 @@ def _expert_until(env, seed: int, subtask: str, max_steps: int):
 def evaluate_kind(env, controllers: dict[str, object], trials: int, first_seed: int = 0,
                   on_trial: Callable[[], None] | None = None) -> dict[str, Cell]:
     """One row: `controllers` maps subtask -> controller (missing subtasks are not run)."""
-    from policies.base import InitiationError
+    from policy_composer.policies.base import InitiationError
 
     row = {c: Cell() for c in SUBTASK_COLUMNS}
     for column in SUBTASK_COLUMNS:
@@ -111,8 +111,8 @@ def evaluate_table(kinds: list[str], sources, trials: int, first_seed: int = 0, 
     import torch
     from tqdm import tqdm
 
-    from policies.library import build_library, cameras_needed, names_of_kind
-    from policy_composer.rollout import make_env
+    from policy_composer.policies.library import build_library, cameras_needed, names_of_kind
+    from policy_composer.tasks.rollout import make_env
 
     torch.set_num_threads(1)
     rows = {}

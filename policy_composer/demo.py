@@ -16,8 +16,7 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 from policy_composer.pipeline import Stage, StageRecord, run_stages
-
-CAMERAS = ("head", "left_forearm", "right_forearm")
+from policy_composer.tasks.spec import CAMERA_NAMES as CAMERAS
 
 
 @dataclass(frozen=True)
@@ -74,12 +73,12 @@ PROFILES = {
 
 def stages(p: Profile) -> list[Stage]:
     """The main job's stages at the sizes of profile `p`."""
-    from policies.cnn.configuration_cnn import CNNPolicyConfig
-    from policies.library import LIBRARY_REVISION
-    from policy_composer.recording.recipes import load_recipe
-    from selector.compose import ComposeConfig
-    from selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
-    from tasks.gear_assembly import TASK_REVISION
+    from policy_composer.data.recipes import load_recipe
+    from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
+    from policy_composer.policies.library import LIBRARY_REVISION, all_names
+    from policy_composer.policies.registry import kinds
+    from policy_composer.selector.configuration import ComposeConfig, DynamicsConfig, GoalScoreConfig, VAEConfig
+    from policy_composer.tasks.gear_assembly import TASK_REVISION
 
     insertion = load_recipe("gear-insertion-demos")
     full_task = replace(load_recipe("gear-full-task-demos"), train_episodes=p.train_demos)
@@ -90,7 +89,9 @@ def stages(p: Profile) -> list[Stage]:
     goal = GoalScoreConfig(epochs=p.goal_epochs, num_mixtures=p.mixtures, image_size=p.image_size)
     compose = ComposeConfig(horizon=p.horizon, samples=p.samples)
     env = {"resolution": p.resolution, "clearance_mm": 2.0, "task_revision": TASK_REVISION}
-    library = {"library_revision": LIBRARY_REVISION}  # in the keys of the stages that run the controllers
+    # In the keys of the stages that run the controllers: a changed or added controller re-runs them.
+    library = {"library_revision": LIBRARY_REVISION, "controllers": all_names()}
+    table_kinds = tuple(k.label for k in kinds().values())
 
     def record(recipe, episodes):
         return {"recipe": asdict(recipe), "episodes": episodes, **env}
@@ -116,8 +117,8 @@ def stages(p: Profile) -> list[Stage]:
         Stage("goal-score", "evaluate the goal score of each camera on the held-out demonstrations", {"cameras": CAMERAS},
               lambda out, i: _evaluate_goal(out, i), inputs=("world-model", "full-task-demos")),
         Stage("table", f"Table I: each controller kind on each subtask ({p.table_trials} per cell)",
-              {"trials": p.table_trials, "kinds": ("MP", "DMP", "CNN"), **env, **library},
-              lambda out, i: _table(out, i, p), inputs=("dmp", "cnn")),
+              {"trials": p.table_trials, "kinds": table_kinds, **env, **library},
+              lambda out, i: _table(out, i, p, table_kinds), inputs=("dmp", "cnn")),
         Stage("compose", f"compose the library with the selector (episodes: {p.compose_episodes})",
               {"compose": asdict(compose), "episodes": p.compose_episodes, **env, **library},
               lambda out, i: _compose(out, i, compose, list(range(p.compose_episodes)), p.resolution, None),
@@ -148,8 +149,9 @@ def run_demo(profile: str = "quick", out: str | Path = "results") -> tuple[dict[
 
 
 def _record(recipe, out: Path, episodes: int, resolution: int, sources=None) -> dict:
-    from policy_composer.recording.catalog import summarize
-    from policy_composer.recording.record import EnvSettings, record_recipe
+    from policy_composer.data.catalog import summarize
+    from policy_composer.record import record_recipe
+    from policy_composer.tasks.spec import EnvSettings
 
     root = out / "dataset"
     resume = (root / "meta" / "info.json").exists()
@@ -162,14 +164,14 @@ def _record(recipe, out: Path, episodes: int, resolution: int, sources=None) -> 
 
 
 def _sources(inputs: dict[str, Path]):
-    from policies.library import LibrarySources
+    from policy_composer.policies.library import LibrarySources
 
-    return LibrarySources(dmp=str(inputs["dmp"] / "dmp"), cnn=str(inputs["cnn"] / "cnn_insert"))
+    return LibrarySources(models={"dmp": str(inputs["dmp"] / "dmp"), "cnn": str(inputs["cnn"] / "cnn_insert")})
 
 
 def _fit_dmp(out: Path, episodes: int) -> dict:
-    from policies.dmp import fit_dmp_library
-    from policy_composer.rollout import make_env
+    from policy_composer.policies.dmp import fit_dmp_library
+    from policy_composer.tasks.rollout import make_env
 
     env = make_env("state_dict")
     try:
@@ -182,7 +184,7 @@ def _fit_dmp(out: Path, episodes: int) -> dict:
 def _train_cnn(out: Path, demos: Path, config) -> dict:
     import torch
 
-    from policies.cnn.train import train_cnn_policy
+    from policy_composer.policies.cnn.train import train_cnn_policy
 
     torch.set_num_threads(2)
     t0 = time.perf_counter()
@@ -193,7 +195,7 @@ def _train_cnn(out: Path, demos: Path, config) -> dict:
 def _train_world(out: Path, inputs: dict[str, Path], vae, dynamics, goal) -> dict:
     import torch
 
-    from selector.train import train_goal_scores, train_world_model
+    from policy_composer.selector.train import train_goal_scores, train_world_model
 
     torch.set_num_threads(2)
     rollouts, demos = inputs["controller-rollouts"] / "dataset", inputs["full-task-demos"] / "dataset"
@@ -203,16 +205,16 @@ def _train_world(out: Path, inputs: dict[str, Path], vae, dynamics, goal) -> dic
 
 
 def _evaluate_goal(out: Path, inputs: dict[str, Path]) -> dict:
-    from selector.evaluate import evaluate_goal_scores
+    from policy_composer.selector.evaluate import evaluate_goal_scores
 
     metrics = evaluate_goal_scores(inputs["world-model"] / "world", inputs["full-task-demos"] / "dataset", out, CAMERAS)
     return {"metrics": metrics}
 
 
-def _table(out: Path, inputs: dict[str, Path], p: Profile) -> dict:
+def _table(out: Path, inputs: dict[str, Path], p: Profile, kinds: tuple[str, ...]) -> dict:
     from policy_composer.controller_table import evaluate_table, write_table
 
-    rows = evaluate_table(["MP", "DMP", "CNN"], _sources(inputs), p.table_trials, 0, p.resolution)
+    rows = evaluate_table(list(kinds), _sources(inputs), p.table_trials, 0, p.resolution)
     write_table(rows, out)
     return {"rows": {kind: {c: [cell.successes, cell.trials, cell.safety_stops] for c, cell in row.items()}
                      for kind, row in rows.items()}}

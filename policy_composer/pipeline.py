@@ -14,11 +14,11 @@ import json
 import os
 import shutil
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
-from policy_composer import interrupt
+from policy_composer.data import interrupt
 
 MARKER = "stage.json"
 

@@ -10,10 +10,11 @@ import time
 from importlib import metadata
 from pathlib import Path
 
-from policy_composer.controller_table import PAPER as PAPER_TABLE, SUBTASK_COLUMNS
 from policy_composer.composition import PAPER_COMPOSED, back_offs, load_episodes, sequence_counts
+from policy_composer.controller_table import PAPER as PAPER_TABLE
+from policy_composer.controller_table import SUBTASK_COLUMNS
 from policy_composer.pipeline import StageRecord
-from selector.compose import ComposedEpisode
+from policy_composer.selector.compose import ComposedEpisode
 
 ASSETS = "report"  # folder beside report.md with the figures and videos it shows
 PAPER_CAMERAS = ("the head camera does not see the fine details of the movement which the forearm cameras do, "

@@ -2,13 +2,14 @@
 # One-shot, idempotent setup for policy-composer on a fresh Debian bookworm machine (run as root).
 #  1. System packages: Mesa >= 24.3 (lavapipe, SAPIEN's CPU Vulkan renderer) from bookworm-backports,
 #     FFmpeg libraries (torchcodec decoding of LeRobot videos), Chromium (the report's headless-browser test).
-#  2. Python: a virtual environment in .venv with the pinned packages and the project (editable).
+#  2. Python: a virtual environment in .venv, built with a Python 3.12 interpreter (lerobot 0.6 needs it), with the
+#     pinned packages and the project (editable). Set PYTHON=/path/to/python3.12 to choose the interpreter.
 # A second run checks stamps and finishes in seconds.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 ROOT=$(pwd)
 VENV="$ROOT/.venv"
-PY=${PYTHON:-python3}
+PY_WANT=3.12
 
 log() { printf '\033[1m[setup]\033[0m %s\n' "$*"; }
 
@@ -50,11 +51,33 @@ SRC
   mesa_ok || { echo "setup: mesa-vulkan-drivers >= 24.3 did not install" >&2; exit 1; }
 }
 
+is_py_want() { "$1" -c "import sys; sys.exit(sys.version_info[:2] != (3, 12))" 2>/dev/null; }
+
+# A Python 3.12 interpreter: $PYTHON, python3.12 or python3 on PATH, pyenv's or uv's installs.
+find_python() {
+  local c
+  for c in ${PYTHON:-} python$PY_WANT python3 \
+           "$(pyenv root 2>/dev/null)"/versions/$PY_WANT*/bin/python$PY_WANT \
+           "$HOME"/.pyenv/versions/$PY_WANT*/bin/python$PY_WANT \
+           "$(uv python find $PY_WANT 2>/dev/null)"; do
+    [ -n "$c" ] && command -v "$c" >/dev/null 2>&1 && is_py_want "$c" && { command -v "$c"; return; }
+  done
+  echo "setup: no Python $PY_WANT interpreter found (lerobot 0.6 needs it). Install one (for example" \
+       "'uv python install $PY_WANT' or your distribution's python$PY_WANT) or point PYTHON= at it." >&2
+  exit 1
+}
+
 python_packages() {
   local stamp="$VENV/.setup-stamp" want
   want=$(cat pyproject.toml scripts/setup.sh | sha256sum | cut -c1-16)
   if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then log "virtual environment up to date"; return; fi
-  [ -x "$VENV/bin/python" ] || "$PY" -m venv "$VENV"
+  if [ -x "$VENV/bin/python" ] && ! is_py_want "$VENV/bin/python"; then
+    log "rebuilding .venv with Python $PY_WANT (it was built with $("$VENV/bin/python" -V 2>&1))"; rm -rf "$VENV"
+  fi
+  if [ ! -x "$VENV/bin/python" ]; then
+    local py; py=$(find_python)
+    log "creating .venv with $py"; "$py" -m venv "$VENV"
+  fi
   "$VENV/bin/python" -m pip install -q --upgrade pip uv
   log "installing Python packages into .venv (first time: several minutes, torch is large)"
   VIRTUAL_ENV="$VENV" "$VENV/bin/uv" pip install --python "$VENV/bin/python" -e ".[test]"

@@ -10,23 +10,15 @@ done, or nothing applies) or at `max_steps`.
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
-from typing import Callable
 
 import torch
 
-from policies.base import Controller
-from policies.planning import PlanningError
-from selector.world_model import GearWorldModel
-
-
-@dataclass
-class ComposeConfig:
-    horizon: int = 10  # n: dynamics steps looked ahead (paper: 10)
-    samples: int = 16  # K: sampled rollouts per controller
-    reselect_every: int | None = None  # also decide again every this many control steps; None: only at termination
-    max_steps: int = 900  # control steps per episode
-    max_failures: int = 1  # a controller that failed this often since the last success is not chosen again
+from policy_composer.policies.base import Controller
+from policy_composer.policies.planning import PlanningError
+from policy_composer.selector.configuration import ComposeConfig
+from policy_composer.selector.world_model import GearWorldModel
 
 
 @dataclass
@@ -55,7 +47,7 @@ class ComposedEpisode:
         return {**asdict(self), "sequence": self.sequence}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "ComposedEpisode":
+    def from_dict(cls, d: dict) -> ComposedEpisode:
         return cls(d["seed"], d["success"], d["steps"], d["knocked_out"], [Activation(**a) for a in d["activations"]],
                    d["decisions"])
 

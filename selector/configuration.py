@@ -9,29 +9,25 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from tasks.gear_assembly import CAMERA_NAMES
-
-
-def _check_camera(camera: str) -> None:
-    if camera not in CAMERA_NAMES:
-        raise ValueError(f"camera must be one of {CAMERA_NAMES}, not {camera!r}")
+from policy_composer.learning.config import BACKBONES, check_choices, option
+from policy_composer.tasks.spec import CAMERA_NAMES
 
 
 @dataclass
 class VAEConfig:
     """The latent state s_t: a variational autoencoder of one camera's images (the paper uses the head camera)."""
 
-    camera: str = "head"
-    image_size: int = 64
-    latent_dim: int = 32
+    camera: str = option("head", "the camera whose images make the latent state", CAMERA_NAMES)
+    image_size: int = option(64, "images are resized to this square")
+    latent_dim: int = option(32, "size of the latent state")
     beta: float = 1.0  # weight of the KL term against the per-image reconstruction error (summed over pixels)
     lr: float = 1e-3
     batch_size: int = 64
-    epochs: int = 30
+    epochs: int = option(30, "VAE training epochs")
     seed: int = 0
 
     def __post_init__(self):
-        _check_camera(self.camera)
+        check_choices(self)
 
 
 @dataclass
@@ -40,13 +36,13 @@ class DynamicsConfig:
 
     controller: str = ""
     latent_dim: int = 32  # the VAE's
-    frame_skip: int = 5  # control steps per dynamics step (one selector look-ahead step)
+    frame_skip: int = option(5, "control steps per dynamics step (one selector look-ahead step)")
     hidden_dim: int = 256
-    num_mixtures: int = 5
+    num_mixtures: int = option(5, "mixture components of each dynamics model")
     decoder_weight: float = 1.0  # the shared decoder: the predicted latent must decode to the real next image
     lr: float = 1e-3
     batch_size: int = 64
-    epochs: int = 60
+    epochs: int = option(60, "dynamics-model training epochs")
     seed: int = 0
 
 
@@ -54,17 +50,27 @@ class DynamicsConfig:
 class GoalScoreConfig:
     """G: a CNN with a mixture density head over task progress, trained on full-task demonstrations."""
 
-    camera: str = "head"
-    image_size: int = 64
-    backbone: str = "small"
+    camera: str = option("head", "the camera the goal score sees", CAMERA_NAMES)
+    image_size: int = option(64, "images are resized to this square")
+    backbone: str = option("small", "image encoder", BACKBONES)
     hidden_dim: int = 256
-    num_mixtures: int = 24  # paper: 24 Gaussian mixtures
+    num_mixtures: int = option(24, "Gaussian mixture components (paper: 24)")
     shift: int = 4  # random-shift augmentation (pixels)
     lr: float = 1e-3
     weight_decay: float = 1e-6
     batch_size: int = 120
-    epochs: int = 60
+    epochs: int = option(60, "goal-score training epochs")
     seed: int = 0
 
     def __post_init__(self):
-        _check_camera(self.camera)
+        check_choices(self)
+
+
+@dataclass
+class ComposeConfig:
+    horizon: int = option(10, "n: dynamics steps looked ahead (paper: 10)")
+    samples: int = option(16, "K: sampled rollouts per controller")
+    reselect_every: int | None = option(None, "also decide every this many control steps (default: only when the "
+                                        "running controller terminates)")
+    max_steps: int = 900  # control steps per episode
+    max_failures: int = option(1, "a controller that failed this often since the last success is not chosen again")

@@ -15,12 +15,12 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from policies.cnn.modeling_cnn import MixtureDensityHead
-from policy_composer.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from policy_composer.recording.frames import episode_bounds
-from policy_composer.training import fit_epochs
-from selector.configuration import DynamicsConfig
-from selector.vae import VAE
+from policy_composer.data.frames import episode_bounds
+from policy_composer.learning.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from policy_composer.learning.layers import MixtureDensityHead
+from policy_composer.learning.training import fit_epochs
+from policy_composer.selector.configuration import DynamicsConfig
+from policy_composer.selector.vae import VAE
 
 TRAIN_HINT = "policy-composer train world-model"
 

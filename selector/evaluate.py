@@ -9,10 +9,10 @@ from pathlib import Path
 
 import torch
 
-from policy_composer.recording.features import image_key
-from policy_composer.recording.frames import episode_bounds, load_frames
-from selector.goal_score import goal_score_metrics, load_goal_score
-from selector.train import demo_split
+from policy_composer.data.features import image_key
+from policy_composer.data.frames import episode_bounds, load_frames
+from policy_composer.selector.goal_score import goal_score_metrics, load_goal_score
+from policy_composer.selector.train import demo_split
 
 STAGES = ("pick", "move", "insert", "done")
 

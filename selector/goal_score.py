@@ -16,11 +16,11 @@ import numpy as np
 import torch
 from torch import nn
 
-from policies.cnn.modeling_cnn import MixtureDensityHead, image_encoder
-from policy_composer.checkpoint import load_checkpoint, save_checkpoint
-from policy_composer.recording.frames import episode_bounds, random_shift, to_model_image
-from policy_composer.training import fit_epochs
-from selector.configuration import GoalScoreConfig
+from policy_composer.data.frames import episode_bounds, random_shift, to_model_image
+from policy_composer.learning.checkpoint import load_checkpoint, save_checkpoint
+from policy_composer.learning.layers import MixtureDensityHead, image_encoder
+from policy_composer.learning.training import fit_epochs
+from policy_composer.selector.configuration import GoalScoreConfig
 
 TRAIN_HINT = "policy-composer train goal-score"
 

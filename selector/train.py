@@ -13,12 +13,12 @@ from pathlib import Path
 
 import torch
 
-from policy_composer.recording.features import DatasetError, image_key, read_sidecar
-from policy_composer.recording.frames import load_frames
-from selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
-from selector.dynamics import train_dynamics
-from selector.goal_score import train_goal_score
-from selector.vae import VAE, load_vae, train_vae
+from policy_composer.data.features import DatasetError, image_key, read_sidecar
+from policy_composer.data.frames import load_frames
+from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
+from policy_composer.selector.dynamics import train_dynamics
+from policy_composer.selector.goal_score import train_goal_score
+from policy_composer.selector.vae import VAE, load_vae, train_vae
 
 
 def demo_split(root: str | Path, split: str) -> list[int]:
@@ -90,7 +90,7 @@ def train_goal_scores(demos: str | Path, out: str | Path, cameras: tuple[str, ..
 @torch.no_grad()
 def reconstructions(vae: VAE, images_uint8: torch.Tensor, batch: int = 256) -> torch.Tensor:
     """The VAE's decoding of each image's posterior mean, uint8 at the images' size."""
-    from policy_composer.recording.frames import to_model_image
+    from policy_composer.data.frames import to_model_image
 
     parts = []
     for i in range(0, len(images_uint8), batch):

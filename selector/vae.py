@@ -13,9 +13,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from policy_composer.checkpoint import load_checkpoint, save_checkpoint
-from policy_composer.training import fit_epochs
-from selector.configuration import VAEConfig
+from policy_composer.learning.checkpoint import load_checkpoint, save_checkpoint
+from policy_composer.learning.training import fit_epochs
+from policy_composer.selector.configuration import VAEConfig
 
 TRAIN_HINT = "policy-composer train world-model"
 

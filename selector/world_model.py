@@ -12,12 +12,12 @@ from pathlib import Path
 
 import torch
 
-from policy_composer.checkpoint import CheckpointError
-from policy_composer.recording.frames import to_model_image
-from selector.core import Selector
-from selector.dynamics import LatentDynamics, load_dynamics
-from selector.goal_score import GoalScoreModel, load_goal_score
-from selector.vae import VAE, load_vae
+from policy_composer.data.frames import to_model_image
+from policy_composer.learning.checkpoint import CheckpointError
+from policy_composer.selector.core import Selector
+from policy_composer.selector.dynamics import LatentDynamics, load_dynamics
+from policy_composer.selector.goal_score import GoalScoreModel, load_goal_score
+from policy_composer.selector.vae import VAE, load_vae
 
 
 class GearWorldModel:
@@ -37,7 +37,7 @@ class GearWorldModel:
         self.frame_skip = skips.pop() if skips else 1
 
     @classmethod
-    def load(cls, root: str | Path, controllers: list[str] | None = None) -> "GearWorldModel":
+    def load(cls, root: str | Path, controllers: list[str] | None = None) -> GearWorldModel:
         """Load the VAE, the goal score of its camera and the dynamics models of `controllers` (default: all)."""
         root = Path(root)
         vae = load_vae(root / "vae")

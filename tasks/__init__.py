@@ -1,4 +1,3 @@
-"""Tasks of policy-composer. Importing this package registers the environments with Gymnasium/ManiSkill:
-``GearAssembly-v1`` (ManiSkill, bimanual gear assembly)."""
-
-from tasks.gear_assembly import CAMERA_NAMES, GearAssemblyEnv  # noqa: F401  (registers GearAssembly-v1)
+"""Tasks of policy-composer: ``GearAssembly-v1`` (ManiSkill, bimanual gear assembly; importing
+``policy_composer.tasks.gear_assembly`` registers it), its scripted expert, and the random-walk MDP.
+``policy_composer.tasks.spec`` names its cameras, state and action without importing the simulator."""

@@ -16,13 +16,12 @@ plate). ``evaluate`` also gives the subtask flags and an integer ``stage`` (0 pi
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import sapien
 import torch
-from transforms3d.euler import euler2quat
-
 from mani_skill.agents.multi_agent import MultiAgent
 from mani_skill.envs.sapien_env import BaseEnv
 from mani_skill.envs.utils.randomization.pose import random_quaternions
@@ -31,24 +30,14 @@ from mani_skill.utils import sapien_utils
 from mani_skill.utils.registration import register_env
 from mani_skill.utils.scene_builder.table import TableSceneBuilder
 from mani_skill.utils.structs.pose import Pose
+from transforms3d.euler import euler2quat
 
-from tasks import panda_light  # noqa: F401  (registers the "panda_light" agent)
-from tasks.gear_geometry import GearSpec, build_gear, build_peg_module
+from policy_composer.tasks import panda_light  # noqa: F401  (registers the "panda_light" agent)
+from policy_composer.tasks.gear_geometry import GearSpec, build_gear, build_peg_module
+from policy_composer.tasks.spec import ACTION_NAMES, ARM_JOINTS, CAMERA_NAMES, STATE_NAMES  # noqa: F401  (re-exported)
 
-CAMERA_NAMES = ("head", "left_forearm", "right_forearm")
 SUPPORTED_ROBOTS = (("panda_light", "panda_light"), ("panda", "panda"))
 SUPPORTED_CONTROL_MODES = ("pd_joint_pos", "pd_joint_delta_pos")
-ARM_JOINTS = tuple(f"panda_joint{i}" for i in range(1, 8))
-# observation.state: both arms' joint angles and gripper widths, in this order.
-STATE_NAMES = tuple(
-    [f"left_{j}" for j in ARM_JOINTS] + ["left_gripper_width"]
-    + [f"right_{j}" for j in ARM_JOINTS] + ["right_gripper_width"]
-)
-# action (flat form): per arm 7 joint targets (rad) and 1 gripper command in [-1, 1] (ManiSkill's Panda maps
-# it linearly to a finger target of -0.01..0.04 m: -1 closes with force, 1 opens).
-ACTION_NAMES = tuple(
-    [f"left_{j}" for j in ARM_JOINTS] + ["left_gripper"] + [f"right_{j}" for j in ARM_JOINTS] + ["right_gripper"]
-)
 
 LEFT_BASE = sapien.Pose(p=[0.0, -0.7, 0.0], q=euler2quat(0, 0, np.pi / 2))
 RIGHT_BASE = sapien.Pose(p=[0.0, 0.7, 0.0], q=euler2quat(0, 0, -np.pi / 2))

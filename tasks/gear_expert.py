@@ -18,8 +18,8 @@ import numpy as np
 import sapien
 import torch
 
-from tasks.gear_assembly import GearAssemblyEnv
-from tasks.gear_kinematics import LeftArmIK, hand_down_quat, plate_direction
+from policy_composer.tasks.gear_assembly import GearAssemblyEnv
+from policy_composer.tasks.gear_kinematics import LeftArmIK, hand_down_quat, plate_direction
 
 GRIPPER_OPEN = 1.0  # normalised gripper commands (see ACTION_NAMES)
 GRIPPER_CLOSED = -1.0

@@ -5,7 +5,7 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 import gymnasium as gym
 import pytest
 
-import tasks  # noqa: F401  (registers GearAssembly-v1)
+import policy_composer.tasks.gear_assembly  # noqa: F401  (registers GearAssembly-v1)
 
 
 @pytest.fixture(scope="session")
@@ -19,8 +19,9 @@ def state_env():
 @pytest.fixture(scope="session")
 def insertion_demos(tmp_path_factory):
     """Two insertion demonstrations at 64x64, recorded once for every test that needs a real dataset."""
-    from policy_composer.recording.recipes import load_recipe
-    from policy_composer.recording.record import EnvSettings, record_recipe
+    from policy_composer.data.recipes import load_recipe
+    from policy_composer.record import record_recipe
+    from policy_composer.tasks.spec import EnvSettings
 
     root = tmp_path_factory.mktemp("ds") / "gear-insertion-demos"
     record_recipe(load_recipe("gear-insertion-demos"), root, episodes=2, settings=EnvSettings(resolution=64), progress=False)
@@ -32,8 +33,9 @@ def full_task_demos(tmp_path_factory):
     """Three full-task demonstrations at 32x32, the first two for training, the third held out."""
     from dataclasses import replace
 
-    from policy_composer.recording.recipes import load_recipe
-    from policy_composer.recording.record import EnvSettings, record_recipe
+    from policy_composer.data.recipes import load_recipe
+    from policy_composer.record import record_recipe
+    from policy_composer.tasks.spec import EnvSettings
 
     root = tmp_path_factory.mktemp("full") / "gear-full-task-demos"
     recipe = replace(load_recipe("gear-full-task-demos"), train_episodes=2)
@@ -46,9 +48,10 @@ def controller_rollouts(tmp_path_factory):
     """One rollout each of mp_pick and mp_insert at 32x32 (head and left forearm cameras): the dynamics models' data."""
     from dataclasses import replace
 
-    from policies.library import LibrarySources
-    from policy_composer.recording.recipes import load_recipe
-    from policy_composer.recording.record import EnvSettings, record_recipe
+    from policy_composer.data.recipes import load_recipe
+    from policy_composer.policies.library import LibrarySources
+    from policy_composer.record import record_recipe
+    from policy_composer.tasks.spec import EnvSettings
 
     recipe = replace(load_recipe("gear-controller-rollouts"), controllers=("mp_pick", "mp_insert"))
     root = tmp_path_factory.mktemp("ro") / "rollouts"

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from policies.arm import Outcome, run_activation
-from policies.dmp import DMPConfig, DMPController, DMPLibrary, fit_dmp_library, fit_primitive, rollout
-from policies.planning import time_parameterize
-from policies.subtasks import SUBTASKS
+from policy_composer.policies.arm import Outcome, run_activation
+from policy_composer.policies.dmp import DMPConfig, DMPController, DMPLibrary, fit_dmp_library, fit_primitive, rollout
+from policy_composer.policies.planning import time_parameterize
+from policy_composer.policies.subtasks import SUBTASKS
 
 
 def test_primitive_reproduces_its_demonstration_and_reaches_a_new_goal():

@@ -5,8 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from tasks import CAMERA_NAMES
-from tasks.gear_assembly import STATE_NAMES
+from policy_composer.tasks.spec import CAMERA_NAMES, STATE_NAMES
 
 
 @pytest.fixture(scope="module")
@@ -80,7 +79,7 @@ def test_flat_action_of_the_wrong_size_is_refused(state_env):
 
 def test_the_right_forearm_camera_sees_the_gear_come_down_onto_the_peg(rgb_env):
     """Its goal score can only learn the insertion if the gear enters its view (the hand hid it at first)."""
-    from tasks.gear_expert import GearAssemblyExpert
+    from policy_composer.tasks.gear_expert import GearAssemblyExpert
 
     u = rgb_env.unwrapped
     obs, _ = rgb_env.reset(seed=0)

@@ -2,8 +2,8 @@
 
 import pytest
 
-from policy_composer.rollout import run_episode
-from tasks.gear_expert import PHASES, ExpertConfig, GearAssemblyExpert
+from policy_composer.tasks.gear_expert import PHASES, ExpertConfig, GearAssemblyExpert
+from policy_composer.tasks.rollout import run_episode
 
 
 @pytest.mark.parametrize("seed", [0, 3, 7])

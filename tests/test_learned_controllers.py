@@ -14,16 +14,22 @@ import sapien
 import torch
 from transforms3d.quaternions import quat2mat
 
-from policies.arm import np0, run_activation
-from policies.cnn.configuration_cnn import CNNPolicyConfig
-from policies.cnn.controller import CNNController, hand_step
-from policies.cnn.train import (CheckpointError, action_target, load_cnn_policy, load_demonstrations,
-                                previous_commands, train_cnn_policy)
-from policies.lerobot_policy import LeRobotPolicyController
 from policy_composer.controller_table import start_state
-from policy_composer.recording.features import read_sidecar
-from tasks.gear_expert import ExpertConfig, GearAssemblyExpert
-from tasks.gear_kinematics import LeftArmIK
+from policy_composer.data.features import read_sidecar
+from policy_composer.policies.arm import np0, run_activation
+from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
+from policy_composer.policies.cnn.controller import CNNController, hand_step
+from policy_composer.policies.cnn.train import (
+    CheckpointError,
+    action_target,
+    load_cnn_policy,
+    load_demonstrations,
+    previous_commands,
+    train_cnn_policy,
+)
+from policy_composer.policies.lerobot_policy import LeRobotPolicyController
+from policy_composer.tasks.gear_expert import ExpertConfig, GearAssemblyExpert
+from policy_composer.tasks.gear_kinematics import LeftArmIK
 
 TINY = dict(image_size=32, hidden_dim=64, num_mixtures=4, batch_size=16, epochs=30)
 

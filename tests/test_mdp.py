@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 import torch
 
-from policies.base import InitiationError
-from policies.random_walk import RANDOM_WALK_OPTIONS, random_walk_controllers
 from policy_composer.mdp import MDPConfig, expected_activations, make_selector, run_mdp
-from selector.core import Selector
-from selector.tabular import TabularDynamics, model_states
-from tasks.random_walk import RIGHT, RandomWalkEnv
+from policy_composer.policies.base import InitiationError
+from policy_composer.policies.random_walk import RANDOM_WALK_OPTIONS, random_walk_controllers
+from policy_composer.selector.core import Selector
+from policy_composer.selector.tabular import TabularDynamics, model_states
+from policy_composer.tasks.random_walk import RIGHT, RandomWalkEnv
 
 
 def test_env_and_controllers():

@@ -7,13 +7,18 @@ import numpy as np
 import pytest
 import sapien
 
-from policies.arm import Outcome, ScriptedController, Segment, run_activation
-from policies.base import InitiationError
-from policies.motion_planning import MotionPlanningController
-from policies.subtasks import SUBTASKS, LearnedController
-from policies.planning import (VELOCITY_LIMIT, PlanningError, SceneCollisionModel, plan_rrt_connect,
-                               time_parameterize)
-from tasks.gear_assembly import LEFT_START_QPOS
+from policy_composer.policies.arm import Outcome, ScriptedController, Segment, run_activation
+from policy_composer.policies.base import InitiationError
+from policy_composer.policies.motion_planning import MotionPlanningController
+from policy_composer.policies.planning import (
+    VELOCITY_LIMIT,
+    PlanningError,
+    SceneCollisionModel,
+    plan_rrt_connect,
+    time_parameterize,
+)
+from policy_composer.policies.subtasks import SUBTASKS, LearnedController
+from policy_composer.tasks.gear_assembly import LEFT_START_QPOS
 
 
 def _scene(env) -> SceneCollisionModel:

@@ -1,10 +1,9 @@
 """The decimated Panda: built once into the cache, far fewer triangles, same materials."""
 
-from pathlib import Path
 
 import trimesh
 
-from tasks import panda_light
+from policy_composer.tasks import panda_light
 
 
 def test_decimated_meshes_are_cached_smaller_and_keep_their_materials(tmp_path, monkeypatch):

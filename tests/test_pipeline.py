@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from policy_composer.interrupt import flag_interrupts
+from policy_composer.data.interrupt import flag_interrupts
 from policy_composer.pipeline import MARKER, Stage, run_stages
 
 ROOT = Path(__file__).resolve().parents[1]

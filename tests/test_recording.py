@@ -15,17 +15,17 @@ import numpy as np
 import pytest
 import torch
 
-import tasks  # noqa: F401
-from policies.library import LeRobotSource, LibraryError, LibrarySources
-from policy_composer.checkpoint import CheckpointError
-from policy_composer.recording import journal
-from policy_composer.recording.catalog import HubUnreachable, drop_controller, push_dataset, summarize
-from policy_composer.recording.features import DatasetError, open_dataset
-from policy_composer.recording.recipes import RecipeError, available_recipes, load_recipe
-from policy_composer.recording.record import EnvSettings, record_recipe
-from policy_composer.recording.recorder import LeRobotRecorder
-from tasks.gear_assembly import ACTION_NAMES, CAMERA_NAMES, STATE_NAMES
-from tasks.gear_expert import ExpertConfig, GearAssemblyExpert
+import policy_composer.tasks.gear_assembly  # noqa: F401  (registers GearAssembly-v1)
+from policy_composer.data import journal
+from policy_composer.data.catalog import HubUnreachable, drop_controller, push_dataset, summarize
+from policy_composer.data.features import DatasetError, open_dataset
+from policy_composer.data.recipes import RecipeError, available_recipes, load_recipe
+from policy_composer.data.recorder import LeRobotRecorder
+from policy_composer.learning.checkpoint import CheckpointError
+from policy_composer.policies.library import LeRobotSource, LibraryError, LibrarySources
+from policy_composer.record import record_recipe
+from policy_composer.tasks.gear_expert import ExpertConfig, GearAssemblyExpert
+from policy_composer.tasks.spec import ACTION_NAMES, CAMERA_NAMES, STATE_NAMES, EnvSettings
 
 RES = 64
 BIN = Path(sys.executable).parent
@@ -110,7 +110,7 @@ def test_dataset_info_and_push_without_network(insertion_demos, monkeypatch):
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     calls = []
-    monkeypatch.setattr("policy_composer.recording.catalog._check_hub_reachable", lambda root: None)
+    monkeypatch.setattr("policy_composer.data.catalog._check_hub_reachable", lambda root: None)
     monkeypatch.setattr(LeRobotDataset, "push_to_hub", lambda self, **kw: calls.append((self.repo_id, self.root, kw)))
     assert push_dataset(insertion_demos, "me/gears", private=True) == "https://huggingface.co/datasets/me/gears"
     assert calls[0][0] == "me/gears" and Path(calls[0][1]) == insertion_demos and calls[0][2]["private"] is True
@@ -146,7 +146,7 @@ def test_bad_input_is_named(insertion_demos, tmp_path):
     assert rollouts.cameras == ("head", "left_forearm")
     with pytest.raises(LibraryError, match="no controller named 'mp_fly'"):
         record_recipe(replace(rollouts, controllers=("mp_fly",)), tmp_path / "ro1", settings=EnvSettings(resolution=32))
-    missing = LibrarySources(dmp=str(tmp_path / "none"), cnn=str(tmp_path / "none"))  # not results/models/*
+    missing = LibrarySources(models={"dmp": str(tmp_path / "none"), "cnn": str(tmp_path / "none")})  # not results/models
     with pytest.raises(CheckpointError, match="no CNN policy checkpoint .* train one with `policy-composer train"):
         record_recipe(rollouts, tmp_path / "ro2", settings=EnvSettings(resolution=32), sources=missing)
     with pytest.raises(FileNotFoundError, match="train dmp"):

@@ -10,18 +10,19 @@ import gymnasium as gym
 import pytest
 import torch
 
-from policies.library import LibrarySources, build_library
-from policy_composer.checkpoint import CheckpointError
 from policy_composer.composition import back_offs, summary
-from policy_composer.recording.features import image_key
-from policy_composer.recording.frames import load_frames
-from selector.compose import Activation, ComposeConfig, ComposedEpisode, Eligibility, compose_episode
-from selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
-from selector.dynamics import load_dynamics, transition_pairs
-from selector.evaluate import evaluate_goal_scores
-from selector.goal_score import goal_score_metrics
-from selector.train import train_goal_scores, train_world_model
-from selector.world_model import GearWorldModel
+from policy_composer.data.features import image_key
+from policy_composer.data.frames import load_frames
+from policy_composer.learning.checkpoint import CheckpointError
+from policy_composer.policies.library import LibrarySources, build_library
+from policy_composer.selector.compose import Activation, ComposedEpisode, Eligibility, compose_episode
+from policy_composer.selector.configuration import ComposeConfig
+from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
+from policy_composer.selector.dynamics import load_dynamics, transition_pairs
+from policy_composer.selector.evaluate import evaluate_goal_scores
+from policy_composer.selector.goal_score import goal_score_metrics
+from policy_composer.selector.train import train_goal_scores, train_world_model
+from policy_composer.selector.world_model import GearWorldModel
 
 SIZE = 32
 
@@ -126,9 +127,9 @@ def test_a_composed_episode_runs_end_to_end(world):
 
 
 def test_knock_out_puts_the_gear_back_on_the_table(state_env):
-    from policies.arm import SceneGeometry
-    from policies.subtasks import SUBTASKS
-    from tasks.gear_expert import GearAssemblyExpert
+    from policy_composer.policies.arm import SceneGeometry
+    from policy_composer.policies.subtasks import SUBTASKS
+    from policy_composer.tasks.gear_expert import GearAssemblyExpert
 
     env = gym.make("GearAssembly-v1", obs_mode="state_dict", knock_out_step=5)
     u = env.unwrapped

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from tasks.gear_assembly import CAMERA_NAMES
+from policy_composer.learning.config import BACKBONES, check_choices, option
+from policy_composer.tasks.spec import CAMERA_NAMES
 
 # What the policy reads of observation.state besides its image, and its size:
 # "gripper": the gripper's width only. With the joints as input, a few dozen demonstrations can be fitted from
@@ -22,34 +23,29 @@ ACTION_SPACES = {"hand": 4, "joint": 8}
 
 @dataclass
 class CNNPolicyConfig:
-    camera: str = "left_forearm"  # which camera the policy sees: head, left_forearm or right_forearm
-    image_size: int = 64  # images are resized to this square before the encoder
-    backbone: str = "spatial"  # see modeling_cnn.image_encoder: "spatial", "small" or "resnet18"
-    proprioception: str = "gripper"  # see PROPRIOCEPTION
-    action_space: str = "hand"  # see ACTION_SPACES
+    camera: str = option("left_forearm", "the camera the policy sees", CAMERA_NAMES)
+    image_size: int = option(64, "images are resized to this square before the encoder")
+    backbone: str = option("spatial", "image encoder (see learning.layers.image_encoder)", BACKBONES)
+    proprioception: str = option("gripper", "what the policy reads besides its image: the gripper width, or the "
+                                 "arm's joints too", tuple(PROPRIOCEPTION))
+    action_space: str = option("hand", "hand: next TCP displacement in the hand frame (IK to joint targets); "
+                               "joint: joint-target deltas", tuple(ACTION_SPACES))
     hidden_dim: int = 256
-    num_mixtures: int = 24  # paper: 24 Gaussian mixtures
+    num_mixtures: int = option(24, "Gaussian mixture components (paper: 24)")
     # Smallest standard deviation of a component, in units of the target's spread. Without a floor the
     # likelihood is won by shrinking variances, and the means (the actions) are left barely fitted: on two
     # demonstrations, a floor of 0.2 cut the fitted descent error from 2.4 mm to 0.5 mm a step.
     min_std: float = 0.2
     lr: float = 1e-3
     weight_decay: float = 1e-6  # paper
-    batch_size: int = 120  # paper
-    epochs: int = 200
-    shift: int = 4  # random-shift augmentation (pixels at image_size): behaviour cloning's usual guard against
-    # memorising a few demonstrations
-    seed: int = 0
+    batch_size: int = option(120, "minibatch size (paper: 120)")
+    epochs: int = option(200, "training epochs (paper: 200)")
+    # Behaviour cloning's usual guard against memorising a few demonstrations.
+    shift: int = option(4, "random-shift augmentation in pixels at image_size (0: none)")
+    seed: int = option(0, "seed of the initialisation and the minibatches")
 
     def __post_init__(self):
-        if self.camera not in CAMERA_NAMES:
-            raise ValueError(f"camera must be one of {CAMERA_NAMES}, not {self.camera!r}")
-        if self.backbone not in ("spatial", "small", "resnet18"):
-            raise ValueError(f"backbone must be 'spatial', 'small' or 'resnet18', not {self.backbone!r}")
-        if self.proprioception not in PROPRIOCEPTION:
-            raise ValueError(f"proprioception must be one of {tuple(PROPRIOCEPTION)}, not {self.proprioception!r}")
-        if self.action_space not in ACTION_SPACES:
-            raise ValueError(f"action_space must be one of {tuple(ACTION_SPACES)}, not {self.action_space!r}")
+        check_choices(self)
 
     @property
     def state_dim(self) -> int:

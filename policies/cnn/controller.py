@@ -6,21 +6,13 @@ import numpy as np
 import sapien
 from transforms3d.quaternions import quat2mat
 
-from policies.arm import np0
-from policies.cnn.configuration_cnn import PROPRIOCEPTION
-from policies.cnn.modeling_cnn import CNNPolicy
-from policies.cnn.train import policy_state
-from policy_composer.recording.frames import to_model_image
-from policies.subtasks import SUBTASKS, LearnedController, Subtask
-from tasks.gear_kinematics import LeftArmIK
-
-
-def check_camera(env, camera: str, who: str) -> None:
-    if camera not in env.camera_names:
-        raise ValueError(f"{who} reads camera {camera!r}, which this env does not render (it has "
-                         f"{list(env.camera_names)}); make the env with that camera")
-    if "rgb" not in env.obs_mode:
-        raise ValueError(f"{who} needs camera images: make the env with obs_mode='rgb', not {env.obs_mode!r}")
+from policy_composer.data.frames import to_model_image
+from policy_composer.policies.arm import np0
+from policy_composer.policies.cnn.configuration_cnn import PROPRIOCEPTION
+from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
+from policy_composer.policies.cnn.train import policy_state
+from policy_composer.policies.subtasks import SUBTASKS, LearnedController, Subtask, check_camera
+from policy_composer.tasks.gear_kinematics import LeftArmIK
 
 
 class CNNController(LearnedController):
@@ -61,3 +53,12 @@ def hand_step(ik: LeftArmIK, command: np.ndarray, displacement: np.ndarray, quat
     command = command + quat2mat(np0(ik.arm.tcp.pose.q)) @ displacement
     q9, _ = ik.solve(sapien.Pose(command, quat), np0(ik.arm.robot.get_qpos()))
     return command, q9[:7]
+
+
+def build(env, subtask, policy: CNNPolicy, max_grasp_offset: float) -> CNNController:
+    """The registry's builder: the trained policy as the subtask's controller."""
+    return CNNController(env, policy, subtask)
+
+
+def policy_cameras(policy: CNNPolicy) -> tuple[str, ...]:
+    return (policy.config.camera,)

@@ -1,93 +1,13 @@
-"""CNN encoder + mixture density network head (Bishop 1994), as the paper's visual policy and goal scorer use."""
+"""The paper's visual policy: a CNN encoder and a mixture density head over the next motion, and a gripper logit."""
 
 from __future__ import annotations
-
-import math
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from policies.cnn.configuration_cnn import CNNPolicyConfig
-
-
-class SpatialSoftmax(nn.Module):
-    """Feature maps (B, C, H, W) -> the expected image coordinates of each channel (B, 2C), in [-1, 1]: where
-    things are, kept precise (Levine et al. 2016, end-to-end visuomotor policies)."""
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        B, C, H, W = x.shape
-        attention = F.softmax(x.flatten(2), dim=-1).view(B, C, H, W)
-        ys = torch.linspace(-1, 1, H, device=x.device)
-        xs = torch.linspace(-1, 1, W, device=x.device)
-        return torch.cat([(attention.sum(2) * xs).sum(-1), (attention.sum(3) * ys).sum(-1)], dim=-1)
-
-
-def image_encoder(backbone: str, out_dim: int) -> nn.Module:
-    """Images (B, 3, H, W) in [0, 1] -> features (B, out_dim).
-
-    "spatial": four convolutions and a spatial softmax (keypoint coordinates), for policies that must place
-    things precisely; "small": four strided convolutions pooled to 2x2, for global judgements (the goal score);
-    "resnet18": torchvision's, randomly initialised."""
-    if backbone == "resnet18":
-        from torchvision.models import resnet18
-
-        net = resnet18(weights=None)  # no download: trained from scratch on our demonstrations
-        net.fc = nn.Linear(net.fc.in_features, out_dim)
-        return net
-    if backbone == "spatial":
-        return nn.Sequential(
-            nn.Conv2d(3, 32, 5, stride=2, padding=2), nn.ReLU(),
-            nn.Conv2d(32, 32, 3, stride=2, padding=1), nn.ReLU(),
-            nn.Conv2d(32, 64, 3, stride=1, padding=1), nn.ReLU(),
-            nn.Conv2d(64, 32, 3, stride=1, padding=1),
-            SpatialSoftmax(), nn.Linear(64, out_dim), nn.ReLU(),
-        )
-    return nn.Sequential(
-        nn.Conv2d(3, 32, 5, stride=2, padding=2), nn.ReLU(),
-        nn.Conv2d(32, 64, 3, stride=2, padding=1), nn.ReLU(),
-        nn.Conv2d(64, 64, 3, stride=2, padding=1), nn.ReLU(),
-        nn.Conv2d(64, 128, 3, stride=2, padding=1), nn.ReLU(),
-        nn.AdaptiveAvgPool2d(2), nn.Flatten(), nn.Linear(128 * 4, out_dim), nn.ReLU(),
-    )
-
-
-class MixtureDensityHead(nn.Module):
-    """Features -> a mixture of K diagonal Gaussians over a D-dimensional target."""
-
-    def __init__(self, in_dim: int, out_dim: int, num_mixtures: int, min_std: float = 1e-3):
-        super().__init__()
-        self.D, self.K = out_dim, num_mixtures
-        self.min_log_std = math.log(min_std)
-        self.logits = nn.Linear(in_dim, num_mixtures)
-        self.means = nn.Linear(in_dim, num_mixtures * out_dim)
-        self.log_stds = nn.Linear(in_dim, num_mixtures * out_dim)
-
-    def forward(self, h: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        B = h.shape[0]
-        log_pi = F.log_softmax(self.logits(h), dim=-1)
-        mu = self.means(h).view(B, self.K, self.D)
-        log_std = self.log_stds(h).view(B, self.K, self.D).clamp(self.min_log_std, 3.0)
-        return log_pi, mu, log_std
-
-    @staticmethod
-    def nll(log_pi, mu, log_std, y: torch.Tensor) -> torch.Tensor:
-        """Mean negative log-likelihood of targets y (B, D)."""
-        z = (y[:, None, :] - mu) / log_std.exp()
-        log_prob = -0.5 * (z ** 2).sum(-1) - log_std.sum(-1) - 0.5 * mu.shape[-1] * math.log(2 * math.pi)
-        return -torch.logsumexp(log_pi + log_prob, dim=-1).mean()
-
-    @staticmethod
-    def sample(log_pi, mu, log_std, generator: torch.Generator | None = None) -> torch.Tensor:
-        k = torch.multinomial(log_pi.exp(), 1, generator=generator).squeeze(-1)
-        idx = torch.arange(len(k))
-        noise = torch.randn(mu[idx, k].shape, generator=generator)
-        return mu[idx, k] + noise * log_std[idx, k].exp()
-
-    @staticmethod
-    def mode(log_pi, mu, log_std) -> torch.Tensor:
-        """The mean of the most probable component: a deterministic action."""
-        return mu[torch.arange(len(mu)), log_pi.argmax(-1)]
+from policy_composer.learning.layers import MixtureDensityHead, image_encoder
+from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 
 
 class CNNPolicy(nn.Module):

@@ -13,13 +13,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from policies.cnn.configuration_cnn import PROPRIOCEPTION, CNNPolicyConfig
-from policies.cnn.modeling_cnn import CNNPolicy
-from policy_composer.checkpoint import CheckpointError, load_checkpoint, load_config, save_checkpoint
-from policy_composer.recording.features import image_key
-from policy_composer.recording.frames import load_frames, random_shift
-from policy_composer.training import fit_epochs
-from tasks.gear_kinematics import PandaForwardKinematics
+from policy_composer.data.features import image_key
+from policy_composer.data.frames import load_frames, random_shift
+from policy_composer.learning.checkpoint import CheckpointError, load_checkpoint, load_config, save_checkpoint
+from policy_composer.learning.training import fit_epochs
+from policy_composer.policies.cnn.configuration_cnn import PROPRIOCEPTION, CNNPolicyConfig
+from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
+from policy_composer.tasks.gear_kinematics import PandaForwardKinematics
 
 
 def policy_state(state16: torch.Tensor, config: CNNPolicyConfig) -> torch.Tensor:

@@ -5,8 +5,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from policy_composer.recording import journal
-from policy_composer.recording.features import read_info, read_sidecar
+from policy_composer.data import journal
+from policy_composer.data.features import read_info, read_sidecar
 
 REPO_ID = re.compile(r"^[A-Za-z0-9][\w.-]*/[A-Za-z0-9][\w.-]*$")
 
@@ -132,7 +132,7 @@ def drop_controller(root: str | Path, controller: str) -> int:
 
     from lerobot.datasets.dataset_tools import delete_episodes
 
-    from policy_composer.recording.features import SIDECAR, DatasetError, open_dataset
+    from policy_composer.data.features import SIDECAR, DatasetError, open_dataset
 
     root = Path(root)
     sidecar = read_sidecar(root)

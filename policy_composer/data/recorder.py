@@ -20,10 +20,8 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from policy_composer import interrupt
-from policy_composer.recording import journal
-from policy_composer.recording.features import (SIDECAR, DatasetError, dataset_features, image_key, read_info,
-                                                read_sidecar)
+from policy_composer.data import interrupt, journal
+from policy_composer.data.features import SIDECAR, DatasetError, dataset_features, image_key, read_info, read_sidecar
 
 VCODEC = "h264"  # not "auto": it picks NVENC and fails without a GPU
 
@@ -147,8 +145,9 @@ class LeRobotRecorder(gym.Wrapper):
 
     def save_episode(self, success: bool, **episode_info) -> None:
         """Label the buffered frames and write them as one episode; all or nothing, even on kill -9."""
-        import datasets
         from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+        import datasets
 
         frames, self._frames = self._frames, []
         if not frames:

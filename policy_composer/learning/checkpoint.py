@@ -8,11 +8,13 @@ or another kind of model fails with an error that says so.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import asdict, fields
 from pathlib import Path
-from typing import Callable, TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
-from torch import nn
+if TYPE_CHECKING:  # torch is imported where a model is saved or built, so that the command line starts fast
+    from torch import nn
 
 C = TypeVar("C")
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from tasks.gear_assembly import ACTION_NAMES, CAMERA_NAMES, STATE_NAMES
+from policy_composer.tasks.spec import ACTION_NAMES, CAMERA_NAMES, STATE_NAMES
 
 FORMAT_VERSION = "v3.0"  # lerobot 0.4.4's dataset format
 SIDECAR = "meta/policy_composer.json"  # recipe, seeds, success and controller names per episode
@@ -93,7 +93,7 @@ def open_dataset(root: str | Path, required: dict[str, tuple[int, ...] | None] |
     """Check a local dataset, then load it with plain `LeRobotDataset(repo_id, root=...)` (offline)."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    from policy_composer.recording.journal import recover
+    from policy_composer.data.journal import recover
 
     root = Path(root)
     recover(root)  # roll back an episode whose save was interrupted

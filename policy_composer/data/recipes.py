@@ -6,7 +6,7 @@ import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
-from tasks.gear_assembly import CAMERA_NAMES
+from policy_composer.tasks.spec import CAMERA_NAMES
 
 RECIPE_DIR = Path(__file__).resolve().parents[2] / "datasets" / "recipes"
 DRIVERS = ("expert", "controllers")
@@ -33,7 +33,7 @@ class Recipe:
     record_phases: tuple[str, ...] = ()  # expert phases to record; empty: the whole episode
     keep: str = "success"  # "success": failed episodes are dropped and another seed is tried; "all"
     train_episodes: int | None = None  # episodes [0, train_episodes) train, the rest are held out
-    controllers: tuple[str, ...] = ()
+    controllers: tuple[str, ...] = ()  # "controllers" driver: which to run (empty: every registered controller)
     cameras: tuple[str, ...] = CAMERA_NAMES  # cameras to render and record
     expert: ExpertSettings = field(default_factory=ExpertSettings)
 

@@ -3,7 +3,7 @@ the frame-weighted mean loss per epoch on a progress bar."""
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import torch
 from torch import nn

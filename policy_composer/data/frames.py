@@ -12,7 +12,7 @@ from pathlib import Path
 import torch
 import torch.nn.functional as F
 
-from policy_composer.recording.features import image_key, open_dataset
+from policy_composer.data.features import image_key, open_dataset
 
 LABELS = ("observation.state", "action", "progress", "stage", "controller", "episode_index", "frame_index")
 

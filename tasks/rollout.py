@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable, Protocol
+from typing import Protocol
 
 import numpy as np
 import torch
 
+from policy_composer.tasks.spec import EnvSettings
+
 
 class Policy(Protocol):
-    """Anything that gives the next flat 16-D action of GearAssembly-v1 (see tasks.gear_assembly.ACTION_NAMES)."""
+    """Anything that gives the next flat 16-D action of GearAssembly-v1 (see policy_composer.tasks.gear_assembly.ACTION_NAMES)."""
 
     name: str
 
@@ -22,12 +25,12 @@ class Policy(Protocol):
     def done(self) -> bool: ...
 
 
-def make_env(obs_mode: str, resolution: int = 128, clearance_mm: float = 2.0, cameras: tuple[str, ...] | None = None,
-             **kwargs):
+def make_env(obs_mode: str, resolution: int = EnvSettings.resolution, clearance_mm: float = EnvSettings.clearance_mm,
+             cameras: tuple[str, ...] | None = None, **kwargs):
     """GearAssembly-v1 with square cameras of `resolution` pixels (all three unless `cameras` names some)."""
     import gymnasium as gym
 
-    import tasks  # noqa: F401  (registers GearAssembly-v1)
+    import policy_composer.tasks.gear_assembly  # noqa: F401  (registers GearAssembly-v1)
 
     if cameras is not None:
         kwargs["cameras"] = tuple(cameras)

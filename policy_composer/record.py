@@ -3,31 +3,20 @@
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
-from policies.library import LibrarySources, build_library, cameras_needed
-from policy_composer import interrupt
-from policy_composer.recording import journal
-from policy_composer.recording.features import read_sidecar
-from policy_composer.recording.recipes import Recipe, RecipeError
-from tasks.gear_assembly import CAMERA_NAMES
+from policy_composer.data import interrupt, journal
+from policy_composer.data.features import read_sidecar
+from policy_composer.data.recipes import Recipe, RecipeError
+from policy_composer.policies.library import LibrarySources, all_names, build_library, cameras_needed
+from policy_composer.tasks.rollout import make_env
+from policy_composer.tasks.spec import EnvSettings
 
 
-@dataclass(frozen=True)
-class EnvSettings:
-    resolution: int = 128
-    clearance_mm: float = 2.0
-    cameras: tuple[str, ...] = CAMERA_NAMES
-
-    def __post_init__(self):
-        object.__setattr__(self, "cameras", tuple(self.cameras))  # a list when read back from JSON
-
-
-def make_recording_env(settings: EnvSettings):
-    from policy_composer.rollout import make_env
-
-    return make_env("rgb", settings.resolution, settings.clearance_mm, settings.cameras)
+def recipe_controllers(recipe: Recipe) -> tuple[str, ...]:
+    """The controllers a "controllers" recipe runs: the ones it names, or every registered kind's."""
+    return (recipe.controllers or all_names()) if recipe.driver == "controllers" else ()
 
 
 def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None, seed: int = 0, resume: bool = False,
@@ -43,10 +32,11 @@ def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None,
     import torch
     from tqdm import tqdm
 
-    from policy_composer.recording.recorder import LeRobotRecorder
+    from policy_composer.data.recorder import LeRobotRecorder
 
     torch.set_num_threads(1)  # the encoder threads need the second core
     root = Path(root)
+    controllers = recipe_controllers(recipe)
     per_unit = episodes if episodes is not None else recipe.episodes
     if resume:
         journal.recover(root)  # before reading the sidecar: an interrupted save may have written it already
@@ -58,22 +48,22 @@ def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None,
         seed = previous["next_seed"]
     settings = settings or EnvSettings()
     if not previous:  # the recipe's cameras, and any others its controllers read
-        needed = cameras_needed(recipe.controllers, sources or LibrarySources()) if recipe.driver == "controllers" else ()
+        needed = cameras_needed(controllers, sources or LibrarySources())
         settings = replace(settings, cameras=tuple(dict.fromkeys((*recipe.cameras, *needed))))
-    env = make_recording_env(settings)
+    env = make_env("rgb", settings.resolution, settings.clearance_mm, settings.cameras)
     recorder = LeRobotRecorder(env, root, task=recipe.task, resume=resume,
                                metadata={"recipe": recipe.name, "env": asdict(settings),
                                          "expert": asdict(recipe.expert), "train_episodes": recipe.train_episodes})
     recorded = Counter(e.get("controller_name") for e in recorder.episodes)  # per controller, when resuming
     if recipe.driver == "controllers":  # a controller with more episodes than asked for counts only what was asked
-        total, done = per_unit * len(recipe.controllers), sum(min(recorded[n], per_unit) for n in recipe.controllers)
+        total, done = per_unit * len(controllers), sum(min(recorded[n], per_unit) for n in controllers)
     else:
         total, done = per_unit, min(recorder.num_episodes, per_unit)
     bar = tqdm(total=total, initial=done, desc=recipe.name, unit="episode", disable=not progress)
     try:
         if recipe.driver == "controllers":
-            library = build_library(recorder, recipe.controllers, sources)
-            for name in recipe.controllers:
+            library = build_library(recorder, controllers, sources)
+            for name in controllers:
                 seed = _record_controller(recorder, library[name], recorded[name], per_unit, seed, bar)
         else:
             _record_expert(recipe, recorder, per_unit, seed, bar)
@@ -93,9 +83,8 @@ def _save(recorder, bar, success: bool, seed: int, **info) -> None:
 
 def _record_expert(recipe: Recipe, recorder, target: int, seed: int, bar) -> None:
     """The scripted expert from each seed's reset, recording the recipe's phases."""
-    from tasks.gear_expert import ExpertConfig, GearAssemblyExpert
-
-    from policy_composer.rollout import episode_limit
+    from policy_composer.tasks.gear_expert import ExpertConfig, GearAssemblyExpert
+    from policy_composer.tasks.rollout import episode_limit
 
     expert = GearAssemblyExpert(recorder, ExpertConfig(grasp_offset=recipe.expert.grasp_offset_mm / 1000.0,
                                                        teleop=recipe.expert.teleop,
@@ -127,8 +116,8 @@ def _record_controller(recorder, controller, done: int, target: int, seed: int, 
     """Activations of one controller until it has `target` (`done` are recorded already), each from a start state
     inside its initiation set (the open-loop expert run, unrecorded, up to where the controller's subtask begins);
     failures are kept. Returns the next seed."""
-    from policies.arm import run_activation
     from policy_composer.controller_table import start_state
+    from policy_composer.policies.arm import run_activation
 
     while done < target:
         recorder.recording = False

@@ -1,0 +1,1 @@
+"""Dataset I/O: LeRobot datasets of ManiSkill rollouts (features, recorder, journal), recipes, frame loading."""

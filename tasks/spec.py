@@ -1,0 +1,32 @@
+"""What GearAssembly-v1 shows and takes, importable without the simulator: its cameras, the names of its state and
+action entries (the LeRobot datasets' feature names), and the settings an env is made with. Configs and the command
+line read these, and importing ManiSkill and torch would cost them seconds."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+CAMERA_NAMES = ("head", "left_forearm", "right_forearm")
+ARM_JOINTS = tuple(f"panda_joint{i}" for i in range(1, 8))
+# observation.state: both arms' joint angles and gripper widths, in this order.
+STATE_NAMES = tuple(
+    [f"left_{j}" for j in ARM_JOINTS] + ["left_gripper_width"]
+    + [f"right_{j}" for j in ARM_JOINTS] + ["right_gripper_width"]
+)
+# action (flat form): per arm 7 joint targets (rad) and 1 gripper command in [-1, 1] (ManiSkill's Panda maps
+# it linearly to a finger target of -0.01..0.04 m: -1 closes with force, 1 opens).
+ACTION_NAMES = tuple(
+    [f"left_{j}" for j in ARM_JOINTS] + ["left_gripper"] + [f"right_{j}" for j in ARM_JOINTS] + ["right_gripper"]
+)
+
+
+@dataclass(frozen=True)
+class EnvSettings:
+    """What a recorded dataset's env was made with (kept in the dataset, so a resumed recording matches)."""
+
+    resolution: int = 128  # camera width and height, pixels
+    clearance_mm: float = 2.0  # radial clearance between peg and hole
+    cameras: tuple[str, ...] = CAMERA_NAMES
+
+    def __post_init__(self):
+        object.__setattr__(self, "cameras", tuple(self.cameras))  # a list when read back from JSON
