@@ -29,7 +29,8 @@ def steps_per_second(env, action_fn, steps: int) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--steps", type=int, default=200)
-    parser.add_argument("--stock", action="store_true", help="also time two stock (undecimated) Pandas with three cameras")
+    parser.add_argument("--stock", action="store_true",
+                        help="also time two stock (undecimated) Pandas with three cameras")
     args = parser.parse_args()
     torch.set_num_threads(1)
 
@@ -48,7 +49,7 @@ def main() -> None:
         u = env.unwrapped
         env.reset(seed=0)
         hold = u.flat_to_dict_action(u.hold_action())
-        sps = steps_per_second(env, lambda: hold, args.steps)
+        sps = steps_per_second(env, lambda hold=hold: hold, args.steps)
         print(f"GearAssembly-v1, {label}: {sps:.1f} steps/s ({sps / ref_sps:.2f}x PickCube-v1)")
         env.close()
 

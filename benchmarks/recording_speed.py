@@ -78,7 +78,8 @@ def main() -> None:
         t0 = time.perf_counter()
         count = sum(len(batch["index"]) for batch in loader)
         t = time.perf_counter() - t0
-        print(f"decode via DataLoader ({backend:10s})   {count / t:6.1f} frames/s  (3 cameras per frame, batch 32, shuffled)")
+        print(f"decode via DataLoader ({backend:10s})   {count / t:6.1f} frames/s  "
+              "(3 cameras per frame, batch 32, shuffled)")
     shutil.rmtree(tmp)
 
 

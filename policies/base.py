@@ -35,7 +35,7 @@ class Controller(ABC):
     def done(self, obs: Any) -> bool:
         """The termination condition beta_w, checked after every step (may be stochastic)."""
 
-    def reset(self, obs: Any, seed: int | None = None) -> None:
+    def reset(self, obs: Any, seed: int | None = None) -> None:  # noqa: B027  (an optional hook)
         """Prepare an activation from `obs` (plan, fit, clear memory). Called by `start` only."""
 
     def start(self, obs: Any, seed: int | None = None) -> None:

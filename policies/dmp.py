@@ -1,6 +1,7 @@
 """Dynamic movement primitive controllers (paper: DMP), learned from the motion planner's trajectories.
 
-For each subtask, every movement between two of its waypoints (`policy_composer.policies.subtasks`) gets a joint-space DMP
+For each subtask, every movement between two of its waypoints
+(`policy_composer.policies.subtasks`) gets a joint-space DMP
 (`movement_primitives`), fitted to the planner's trajectories for that movement over several episodes (the
 forcing-term weights averaged). At run time the DMP is configured with the new episode's start (the arm's
 joints) and goal (the waypoint's IK solution) and rolled out: no planner and no collision checks, so a DMP
@@ -165,7 +166,8 @@ def fit_dmp_library(env, seeds: list[int], config: DMPConfig | None = None, prog
         library.primitives[name] = []
         for i in range(len(episodes[0])):
             movement = [ep[i] for ep in episodes if ep[i] is not None]
-            library.primitives[name].append(fit_primitive(movement, config) if len(movement) > len(episodes) // 2 else None)
+            library.primitives[name].append(fit_primitive(movement, config)
+                                            if len(movement) > len(episodes) // 2 else None)
     return library
 
 

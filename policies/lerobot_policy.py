@@ -51,7 +51,8 @@ class LeRobotPolicyController(LearnedController):
                 raise ValueError(f"the policy at {path} takes a state of shape {tuple(feature.shape)}, "
                                  f"GearAssembly-v1 gives ({len(STATE_NAMES)},)")
         if tuple(cfg.output_features["action"].shape) != (len(ACTION_NAMES),):
-            raise ValueError(f"the policy at {path} outputs actions of shape {tuple(cfg.output_features['action'].shape)}, "
+            raise ValueError(f"the policy at {path} outputs actions of shape "
+                             f"{tuple(cfg.output_features['action'].shape)}, "
                              f"GearAssembly-v1 takes ({len(ACTION_NAMES)},)")
         self.policy = get_policy_class(cfg.type).from_pretrained(path, config=cfg).eval()
         self.preprocess, self.postprocess = make_pre_post_processors(

@@ -39,7 +39,8 @@ class MotionPlanningController(SubtaskController):
         finger = float(np0(obs["extra"]["state"])[7] / 2)
         module = self.env.peg_module.pose
         self.collision.set_scene(np0(self.env.right_arm.robot.get_qpos()), sapien.Pose(np0(module.p), np0(module.q)),
-                                 self.scene.spec, held=self.nominal_held_gear() if self.subtask.holds_gear else None, fingers=finger)
+                                 self.scene.spec, held=self.nominal_held_gear() if self.subtask.holds_gear else None,
+                                 fingers=finger)
         q, segments = self.q9(obs), []
         for wp in waypoints:
             if wp.kind == "free":
@@ -72,7 +73,8 @@ class MotionPlanningController(SubtaskController):
         model = self.collision.model
         tcp = model.frames[model.getFrameId("panda_hand_tcp")].placement
         spec, h = self.scene.spec, self.scene.grasp_height
-        return HeldObject(spec.outer_radius, spec.height, tcp * pin.SE3(np.eye(3), np.array([0, 0, h - spec.height / 2])))
+        return HeldObject(spec.outer_radius, spec.height,
+                          tcp * pin.SE3(np.eye(3), np.array([0, 0, h - spec.height / 2])))
 
 
 

@@ -24,13 +24,14 @@ from policy_composer.policies.arm import (
     Segment,
     np0,
 )
-from policy_composer.policies.planning import PlanningError
+from policy_composer.policies.planning import VELOCITY_LIMIT, PlanningError
 from policy_composer.tasks.gear_kinematics import LeftArmIK
 
 PRE_GRASP_HEIGHT = 0.08  # TCP above the grasp point before descending (m)
 LIFT_HEIGHT = 0.12  # how far the pick-up lifts the gear (m)
 RETREAT_HEIGHT = 0.10
-
+# A learned controller's steps are limited to this fraction of the joint velocity limits (see limit_step).
+STEP_SPEED_MARGIN = 0.9
 
 @dataclass
 class Waypoint:
@@ -43,7 +44,8 @@ class Waypoint:
     settle: int = 4  # control steps holding the goal afterwards
 
 
-def ik_hand_down(ik: LeftArmIK, scene: SceneGeometry, p: np.ndarray, seed_q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def ik_hand_down(ik: LeftArmIK, scene: SceneGeometry, p: np.ndarray,
+                 seed_q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(quat, q) putting the TCP at p with the hand down (see LeftArmIK.solve_hand_down)."""
     solution = ik.solve_hand_down(p, scene.finger_dir(), seed_q)
     if solution is None:
@@ -248,7 +250,17 @@ class LearnedController(LeftArmController):
         if self._steps >= self.max_steps or (achieved and self._gripper > 0 and not info["gear_grasped"]):
             return None
         self._steps += 1
-        return self.predict(obs)
+        q, gripper = self.predict(obs)
+        return self.limit_step(q), gripper
+
+    def limit_step(self, q: np.ndarray) -> np.ndarray:
+        """Joint targets `q`, with the step from the last command scaled down (its direction kept) so that no joint
+        moves faster than `STEP_SPEED_MARGIN` of the Panda's velocity limit. A learned policy's step can overshoot
+        where its training data were sparse; the safety check then stops only what limiting cannot mend (joint
+        limits, non-finite targets)."""
+        step = np.asarray(q, dtype=np.float64) - self._last
+        ratio = float(np.max(np.abs(step) * self.rate_hz / (STEP_SPEED_MARGIN * VELOCITY_LIMIT)))
+        return self._last + step / ratio if ratio > 1.0 else q
 
     def predict(self, obs) -> tuple[np.ndarray, float]:
         raise NotImplementedError

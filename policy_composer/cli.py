@@ -41,7 +41,7 @@ def _make_env(obs_mode: str, args: argparse.Namespace, cameras: tuple[str, ...] 
 
 
 def _expert(env, args: argparse.Namespace):
-    from policy_composer.tasks.gear_expert import GearAssemblyExpert
+    from policy_composer.tasks.gear_expert import ExpertConfig, GearAssemblyExpert
 
     return GearAssemblyExpert(env, ExpertConfig(grasp_offset=args.grasp_offset / 1000.0,
                                                 closed_loop=not getattr(args, "open_loop", False)))
@@ -74,9 +74,8 @@ def cmd_expert(args: argparse.Namespace) -> int:
     expert = _expert(env, args)
     successes = 0
     for seed in range(args.seed, args.seed + args.episodes):
-        bar = tqdm(total=episode_limit(env), desc=f"expert seed {seed}", unit="step", leave=False)
-        result = run_episode(env, expert, seed, record_frames=True, on_step=lambda *_: bar.update())
-        bar.close()
+        with tqdm(total=episode_limit(env), desc=f"expert seed {seed}", unit="step", leave=False) as bar:
+            result = run_episode(env, expert, seed, record_frames=True, on_step=lambda *_, bar=bar: bar.update())
         video = out / f"expert_seed{seed}.mp4"
         imageio.mimsave(video, result.frames, fps=int(env.unwrapped.control_freq), macro_block_size=1)
         successes += result.success
@@ -184,7 +183,8 @@ def cmd_train_policy(args: argparse.Namespace) -> int:
     config = config_from(args, CNNPolicyConfig)
     t0 = time.time()
     _, losses = train_cnn_policy(args.dataset, config, out=args.out)
-    print(f"trained {args.out} in {time.time() - t0:.0f} s: nll {losses[0]:.3f} -> {losses[-1]:.3f} over {len(losses)} epochs")
+    print(f"trained {args.out} in {time.time() - t0:.0f} s: nll {losses[0]:.3f} -> {losses[-1]:.3f} "
+          f"over {len(losses)} epochs")
     return 0
 
 
@@ -256,7 +256,8 @@ def cmd_compose(args: argparse.Namespace) -> int:
     """The selector composes the whole library in GearAssembly-v1 rollouts (paper Table I, composed row)."""
     from policy_composer.composition import compose_library
 
-    episodes = compose_library(args.models, _sources(args), config_from(args, ComposeConfig), list(range(args.seed, args.seed + args.episodes)),
+    episodes = compose_library(args.models, _sources(args), config_from(args, ComposeConfig),
+                               list(range(args.seed, args.seed + args.episodes)),
                                Path(args.out), videos=args.videos, resolution=args.resolution,
                                clearance_mm=args.clearance, knock_out_step=args.knock_out_step, resume=args.resume)
     ok = sum(e.success for e in episodes)
@@ -278,7 +279,8 @@ def build_parser() -> argparse.ArgumentParser:
     cameras = ",".join(CAMERA_NAMES)
 
     def env_options(p: argparse.ArgumentParser, grasp: bool = True) -> None:
-        p.add_argument("--resolution", type=int, default=EnvSettings.resolution, help="camera width and height in pixels")
+        p.add_argument("--resolution", type=int, default=EnvSettings.resolution,
+                       help="camera width and height in pixels")
         p.add_argument("--clearance", type=float, default=EnvSettings.clearance_mm,
                        help="radial clearance between peg and hole, mm")
         if grasp:
@@ -378,21 +380,25 @@ def build_parser() -> argparse.ArgumentParser:
     add_config_options(compose, ComposeConfig, {"horizon": "horizon", "samples": "samples",
                                                 "reselect_every": "reselect-every", "max_failures": "max-failures"})
     compose.add_argument("--knock-out-step", type=int, default=None,
-                         help="perturbation: knock the gear out of the gripper at this control step (or when next lifted)")
+                         help="perturbation: knock the gear out of the gripper at this control step "
+                              "(or when next lifted)")
     compose.add_argument("--videos", type=int, default=1, help="episodes to write a video of")
-    compose.add_argument("--resume", action="store_true", help="keep the episodes already in --out; run the other seeds")
+    compose.add_argument("--resume", action="store_true",
+                         help="keep the episodes already in --out; run the other seeds")
     compose.add_argument("--out", default="results/compose")
     compose.set_defaults(func=cmd_compose)
 
     record = sub.add_parser("record", help="record a dataset recipe (datasets/recipes/) into a LeRobotDataset")
     record.add_argument("recipe", help="recipe name (gear-insertion-demos, gear-full-task-demos, "
                                        "gear-controller-rollouts) or path of a .toml recipe")
-    record.add_argument("--episodes", type=int, default=None, help="episodes the dataset should hold (default: the recipe's)")
+    record.add_argument("--episodes", type=int, default=None,
+                        help="episodes the dataset should hold (default: the recipe's)")
     record.add_argument("--root", default=None, help="dataset folder (default: datasets/RECIPE)")
     record.add_argument("--resume", action="store_true", help="continue an interrupted or shorter recording")
     env_options(record, grasp=False)
     record.add_argument("--controllers", default=None,
-                        help="comma-separated subset of the recipe's controllers to record (recipes that run the controllers)")
+                        help="comma-separated subset of the recipe's controllers to record "
+                             "(recipes that run the controllers)")
     model_options(record)
     record.set_defaults(func=cmd_record)
 

@@ -74,8 +74,7 @@ def run_composition(env, library: dict, world: GearWorldModel, config: ComposeCo
     path = out / "episodes.jsonl"
     done = {e.seed: e for e in load_episodes(out)} if resume else {}
     episodes = [done[s] for s in seeds if s in done]
-    log = open(path, "a" if resume else "w")
-    try:
+    with open(path, "a" if resume else "w") as log:
         for i, seed in enumerate(tqdm(seeds, desc="composed episodes", unit="episode", disable=not progress)):
             if seed in done:
                 continue
@@ -87,8 +86,6 @@ def run_composition(env, library: dict, world: GearWorldModel, config: ComposeCo
             if video is not None:
                 video.save(out / f"composed_seed{seed}.mp4", int(env.unwrapped.control_freq))
             interrupt.check()
-    finally:
-        log.close()
     episodes.sort(key=lambda e: seeds.index(e.seed))
     (out / "summary.md").write_text(summary(episodes, config))
     return episodes

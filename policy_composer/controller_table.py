@@ -135,7 +135,8 @@ def write_table(rows: dict[str, dict[str, Cell]], out: Path, notes: dict[str, st
         w.writerow(["kind", "subtask", "successes", "trials", "safety_stops", "paper"])
         for kind, row in rows.items():
             for column, cell in row.items():
-                w.writerow([kind, column, cell.successes, cell.trials, cell.safety_stops, PAPER.get(kind, {}).get(column, "")])
+                w.writerow([kind, column, cell.successes, cell.trials, cell.safety_stops,
+                            PAPER.get(kind, {}).get(column, "")])
     lines = ["# Controllers on each subtask (paper Table I, first rows)", "",
              "Each cell: ours (paper). `*`: stopped for safety. `-`: not run.", "",
              "| controller | pick | move | insert | full task |", "|---|---|---|---|---|"]

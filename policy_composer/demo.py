@@ -97,12 +97,14 @@ def stages(p: Profile) -> list[Stage]:
         return {"recipe": asdict(recipe), "episodes": episodes, **env}
 
     return [
-        Stage("insertion-demos", f"record the insertion demonstrations ({p.insertion_demos})", record(insertion, p.insertion_demos),
+        Stage("insertion-demos", f"record the insertion demonstrations ({p.insertion_demos})",
+              record(insertion, p.insertion_demos),
               lambda out, _: _record(insertion, out, p.insertion_demos, p.resolution), resumable=True),
         Stage("full-task-demos", f"record the full-task demonstrations ({p.full_task_demos}, of which "
               f"{p.train_demos} train the goal scorers)", record(full_task, p.full_task_demos),
               lambda out, _: _record(full_task, out, p.full_task_demos, p.resolution), resumable=True),
-        Stage("dmp", f"fit the DMPs to the motion planner's episodes ({p.dmp_episodes})", {"episodes": p.dmp_episodes, **env},
+        Stage("dmp", f"fit the DMPs to the motion planner's episodes ({p.dmp_episodes})",
+              {"episodes": p.dmp_episodes, **env},
               lambda out, _: _fit_dmp(out, p.dmp_episodes)),
         Stage("cnn", f"train the CNN policy ({p.cnn_epochs} epochs)", asdict(cnn),
               lambda out, i: _train_cnn(out, i["insertion-demos"], cnn), inputs=("insertion-demos",)),
@@ -114,7 +116,8 @@ def stages(p: Profile) -> list[Stage]:
               {"vae": asdict(vae), "dynamics": asdict(dynamics), "goal": asdict(goal), "cameras": CAMERAS},
               lambda out, i: _train_world(out, i, vae, dynamics, goal),
               inputs=("controller-rollouts", "full-task-demos")),
-        Stage("goal-score", "evaluate the goal score of each camera on the held-out demonstrations", {"cameras": CAMERAS},
+        Stage("goal-score", "evaluate the goal score of each camera on the held-out demonstrations",
+              {"cameras": CAMERAS},
               lambda out, i: _evaluate_goal(out, i), inputs=("world-model", "full-task-demos")),
         Stage("table", f"Table I: each controller kind on each subtask ({p.table_trials} per cell)",
               {"trials": p.table_trials, "kinds": table_kinds, **env, **library},

@@ -138,7 +138,8 @@ def experiment_19(out: Path, episodes: int = 1000, seed: int = 0) -> dict:
     with open(out / "mdp19_episodes.csv", "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["episode", "activations", "success"])
-        w.writerows(zip(range(len(result.activations)), result.activations.tolist(), result.success.astype(int).tolist()))
+        w.writerows(zip(range(len(result.activations)), result.activations.tolist(),
+                        result.success.astype(int).tolist()))
     plot_solution(result.trace, 19, out / "mdp19_solution.png")
     (out / "mdp19_summary.json").write_text(json.dumps(summary, indent=1))
     return summary
@@ -221,11 +222,12 @@ def plot_solution(trace: list[dict], num_states: int, path: Path) -> None:
                       label=n if k == 0 else None)
         ax.plot([rec["state"], rec["reached"]], [y, y], color="red", lw=2, marker="o", ms=4,
                 label="state reached (chosen controller run)" if k == 0 else None)
-        ax.annotate(rec["choice"], (rec["reached"], y), textcoords="offset points", xytext=(6, 4), color="red", fontsize=8)
+        ax.annotate(rec["choice"], (rec["reached"], y), textcoords="offset points", xytext=(6, 4), color="red",
+                    fontsize=8)
     ax.set_xlim(-0.5, num_states + 1.5)
     ax.set_xticks(range(0, num_states + 2))
     ax.set_ylim(len(trace) + 0.8, 0.2)
-    ax.set_xlabel("state (0 and %d terminal, +1 at %d)" % (num_states + 1, num_states + 1))
+    ax.set_xlabel(f"state (0 and {num_states + 1} terminal, +1 at {num_states + 1})")
     ax.set_ylabel("planning step")
     ax.set_title(f"{num_states}-state MDP: predicted end state of each controller (bars, mean of K rollouts) "
                  "and the state reached", fontsize=9)
@@ -281,10 +283,11 @@ def write_report(out: Path, s19: dict, heatmaps: dict[str, dict]) -> Path:
              "uniformly from the other states; `lookahead`: p_dyn is the chance that an n-step look-ahead contains "
              "one, `step`: the chance per model step.", "",
              "| figure | paper | ours |", "|---|---|---|",
-             f"| 19 states from state 1, p = 0.2: planning steps to the goal | {PAPER['planning_steps_19']} (one run) | "
+             "| 19 states from state 1, p = 0.2: planning steps to the goal | "
+             f"{PAPER['planning_steps_19']} (one run) | "
              f"mean {s19['mean_planning_steps']:.2f}, median {s19['median_planning_steps']:.0f} over "
-             f"{s19['config']['episodes']} episodes; {100 * s19['success_rate']:.1f}% reach the goal (the rest fall off "
-             f"at state 0) |",
+             f"{s19['config']['episodes']} episodes; {100 * s19['success_rate']:.1f}% reach the goal "
+             f"(the rest fall off at state 0) |",
              f"| the same, noise per model step | - | mean {s19['mean_planning_steps_per_step_noise']:.2f}; "
              f"{100 * s19['success_rate_per_step_noise']:.1f}% reach the goal |",
              f"| 19 states, no noise | - | {s19['mean_planning_steps_no_noise']:.2f} (analytic for c1: "
@@ -307,7 +310,8 @@ def write_report(out: Path, s19: dict, heatmaps: dict[str, dict]) -> Path:
         lines += [f"With dynamics noise per {unit} (`mdp100_heatmap_{unit}.png`):", "",
                   f"- Low noise stays near optimal (under 20 activations): {yes(c['low_noise_under_20']['holds'])}"
                   f" ({low_cells}).",
-                  f"- More sensitive to goal-score noise than to dynamics noise: {yes(c['more_sensitive_to_goal_noise']['holds'])}"
+                  "- More sensitive to goal-score noise than to dynamics noise: "
+                  f"{yes(c['more_sensitive_to_goal_noise']['holds'])}"
                   f" (mean rise along the goal axis {c['more_sensitive_to_goal_noise']['mean_rise_goal_axis']:.1f}, "
                   f"along the dynamics axis {c['more_sensitive_to_goal_noise']['mean_rise_dynamics_axis']:.1f}).",
                   f"- Converges despite the noise: {yes(c['converges']['holds'])} ("

@@ -62,7 +62,8 @@ def run_stages(stages: list[Stage], root: Path, log: Callable[[str], None] = pri
         head = f"[{i}/{len(stages)}] {stage.title}"
         if marker.exists():
             done = json.loads(marker.read_text())
-            records[stage.name] = StageRecord(stage.name, stage.title, key, folder, done["seconds"], True, done["facts"])
+            records[stage.name] = StageRecord(stage.name, stage.title, key, folder, done["seconds"], True,
+                                              done["facts"])
             log(f"{head}: reused {folder} ({done['seconds']:.0f} s when it ran)")
             continue
         if folder.exists() and not stage.resumable:

@@ -3,6 +3,7 @@ each figure beside the paper's, from the outputs the pipeline's stages left in t
 
 from __future__ import annotations
 
+import contextlib
 import os
 import platform
 import shutil
@@ -83,12 +84,14 @@ def _header(profile, records: dict[str, StageRecord], wall_seconds: float) -> st
         f"Profile `{profile.name}`, written {time.strftime('%Y-%m-%d %H:%M')}. This run took "
         f"{wall_seconds / 60:.1f} min: {len(ran)} of {len(records)} stages ran"
         + (", the others were reused from an earlier run with the same settings; all stages together took "
-           f"{sum(r.seconds for r in records.values()) / 60:.1f} min when they ran." if len(ran) < len(records) else "."),
+           f"{sum(r.seconds for r in records.values()) / 60:.1f} min when they ran."
+           if len(ran) < len(records) else "."),
         "",
         f"**What holds at this size.** {profile.holds}", "",
         f"Sizes: {profile.insertion_demos} insertion demonstrations, {profile.train_demos} full-task demonstrations "
         f"for the goal scorers ({profile.full_task_demos - profile.train_demos} held out), {profile.rollouts} rollouts "
-        f"per controller, CNN {profile.cnn_epochs} epochs, {profile.mixtures} mixtures, selector n = {profile.horizon}, "
+        f"per controller, CNN {profile.cnn_epochs} epochs, {profile.mixtures} mixtures, "
+        f"selector n = {profile.horizon}, "
         f"K = {profile.samples}, cameras at {profile.resolution} px (models see {profile.image_size} px)."])
 
 
@@ -105,9 +108,11 @@ def _table_one(records, composed: list[ComposedEpisode], knocked: list[ComposedE
              "| controller | pick | move | insert | full task |", "|---|---|---|---|---|"]
     for kind in rows:
         paper = PAPER_TABLE.get(kind, {})
-        lines.append(f"| {kind} | " + " | ".join(f"{cell(kind, c)} ({paper.get(c, '-')})" for c in SUBTASK_COLUMNS) + " |")
+        lines.append(f"| {kind} | " + " | ".join(f"{cell(kind, c)} ({paper.get(c, '-')})" for c in SUBTASK_COLUMNS)
+                     + " |")
     first = composed[:10]
-    lines.append(f"| composed (selector) | - | - | - | {sum(e.success for e in first)}/{len(first)} ({PAPER_COMPOSED}) |")
+    lines.append(f"| composed (selector) | - | - | - | {sum(e.success for e in first)}/{len(first)} "
+                 f"({PAPER_COMPOSED}) |")
     if len(composed) > len(first):
         lines += ["", f"Composed over {len(composed)} seeds: {sum(e.success for e in composed)}/{len(composed)} "
                       "full-task successes (the paper runs 10)."]
@@ -183,15 +188,11 @@ def _timings(records: dict[str, StageRecord], wall_seconds: float) -> str:
 def machine_facts() -> dict[str, str]:
     """The machine and the package versions the figures were measured with."""
     cpu = platform.processor() or "unknown CPU"
-    try:
-        cpu = next(line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
+    with contextlib.suppress(OSError, StopIteration), open("/proc/cpuinfo") as f:
+        cpu = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
     facts = {"CPU": f"{cpu}, {os.cpu_count()} cores", "OS": platform.platform(), "Python": platform.python_version()}
-    try:
+    with contextlib.suppress(ValueError, OSError):
         facts["memory"] = f"{os.sysconf('SC_PAGE_SIZE') * os.sysconf('SC_PHYS_PAGES') / 2**30:.0f} GiB"
-    except (ValueError, OSError):
-        pass
     for package in ("torch", "mani-skill", "sapien", "lerobot", "ompl"):
         try:
             facts[package] = metadata.version(package)

@@ -76,7 +76,8 @@ def transition_pairs(episode_index: torch.Tensor, frame_skip: int) -> tuple[torc
 
 
 def train_dynamics(latents: torch.Tensor, images: torch.Tensor, episode_index: torch.Tensor, config: DynamicsConfig,
-                   vae: VAE, out: str | Path | None = None, progress: bool = True) -> tuple[LatentDynamics, list[float]]:
+                   vae: VAE, out: str | Path | None = None,
+                   progress: bool = True) -> tuple[LatentDynamics, list[float]]:
     """Fit D_w on one controller's frames: latents (N, L) from the VAE, their uint8 images and episodes."""
     t0 = time.perf_counter()
     if len(latents) < 2:
@@ -95,7 +96,8 @@ def train_dynamics(latents: torch.Tensor, images: torch.Tensor, episode_index: t
     opt = torch.optim.Adam(model.parameters(), lr=config.lr)
     gen = torch.Generator().manual_seed(config.seed)
     losses = fit_epochs(model, opt, len(src), config.batch_size, config.epochs,
-                        lambda idx: model.loss(latents[src[idx]], latents[dst[idx]], vae, images[dst[idx]].float() / 255.0),
+                        lambda idx: model.loss(latents[src[idx]], latents[dst[idx]], vae,
+                                               images[dst[idx]].float() / 255.0),
                         gen, f"training dynamics ({config.controller})", progress, digits=2)
     if out is not None:
         log = {"pairs": len(src), "losses": losses, "seconds": round(time.perf_counter() - t0, 1)}

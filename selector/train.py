@@ -51,7 +51,8 @@ def train_world_model(rollouts: str | Path, demos: str | Path, out: str | Path, 
     else:
         demo = load_frames(demos, (camera,), size, demo_split(demos, "train"), progress=progress)
         t0 = time.perf_counter()
-        vae, _ = train_vae(torch.cat([ro[image_key(camera)], demo[image_key(camera)]]), vae_config, out / "vae", progress)
+        vae, _ = train_vae(torch.cat([ro[image_key(camera)], demo[image_key(camera)]]), vae_config, out / "vae",
+                           progress)
         timings["vae"] = time.perf_counter() - t0
     names = read_sidecar(rollouts)["controllers"]
     latents = vae.latents(ro[image_key(camera)])

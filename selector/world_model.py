@@ -46,7 +46,8 @@ class GearWorldModel:
         names = controllers if controllers is not None else available
         missing = [n for n in names if n not in available]
         if missing or not names:
-            raise CheckpointError(f"{root} has no dynamics model for {missing or 'any controller'} (it has {available}); "
+            raise CheckpointError(f"{root} has no dynamics model for {missing or 'any controller'} "
+                                  f"(it has {available}); "
                                   f"record their rollouts and train them with `policy-composer train world-model`")
         dynamics = {n: load_dynamics(folder / n, vae.config.latent_dim) for n in names}
         return cls(vae, dynamics, load_goal_score(root / "goal_score" / vae.config.camera))

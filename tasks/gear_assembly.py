@@ -87,12 +87,15 @@ class GearAssemblyEnv(BaseEnv):
     ):
         robot_uids = tuple(robot_uids) if not isinstance(robot_uids, str) else robot_uids
         if robot_uids not in SUPPORTED_ROBOTS:
-            raise ValueError(f"GearAssembly-v1 does not support robot_uids={robot_uids!r}; choose one of {list(SUPPORTED_ROBOTS)}")
+            raise ValueError(f"GearAssembly-v1 does not support robot_uids={robot_uids!r}; "
+                             f"choose one of {list(SUPPORTED_ROBOTS)}")
         if control_mode not in SUPPORTED_CONTROL_MODES:
-            raise ValueError(f"GearAssembly-v1 does not support control_mode={control_mode!r}; choose one of {list(SUPPORTED_CONTROL_MODES)}")
+            raise ValueError(f"GearAssembly-v1 does not support control_mode={control_mode!r}; "
+                             f"choose one of {list(SUPPORTED_CONTROL_MODES)}")
         unknown = [c for c in cameras if c not in CAMERA_NAMES]
         if unknown or len(set(cameras)) != len(cameras):
-            raise ValueError(f"unknown or repeated camera names {unknown or list(cameras)}; valid cameras are {list(CAMERA_NAMES)}")
+            raise ValueError(f"unknown or repeated camera names {unknown or list(cameras)}; "
+                             f"valid cameras are {list(CAMERA_NAMES)}")
         for name, value in (("camera_width", camera_width), ("camera_height", camera_height)):
             if not isinstance(value, (int, np.integer)) or value <= 0:
                 raise ValueError(f"{name}={value!r}: the camera resolution must be a positive integer (default 128)")
@@ -112,11 +115,12 @@ class GearAssemblyEnv(BaseEnv):
     def _camera_config(self, name: str) -> CameraConfig:
         w, h = self.camera_size
         if name == "head":
-            return CameraConfig("head", sapien_utils.look_at(eye=HEAD_EYE, target=HEAD_TARGET), w, h, np.deg2rad(60), 0.01, 100)
+            return CameraConfig("head", sapien_utils.look_at(eye=HEAD_EYE, target=HEAD_TARGET), w, h, np.deg2rad(60),
+                                0.01, 100)
         side = name.removesuffix("_forearm")
         arm = self.agent.agents[0 if side == "left" else 1]
-        return CameraConfig(name, sapien_utils.look_at(*FOREARM_VIEWS[side], up=[0, 0, -1]), w, h, np.deg2rad(80), 0.01, 100,
-                            mount=arm.robot.links_map["panda_hand"])
+        return CameraConfig(name, sapien_utils.look_at(*FOREARM_VIEWS[side], up=[0, 0, -1]), w, h, np.deg2rad(80),
+                            0.01, 100, mount=arm.robot.links_map["panda_hand"])
 
     @property
     def _default_sensor_configs(self):
@@ -139,7 +143,8 @@ class GearAssemblyEnv(BaseEnv):
         # Peg module in the right TCP frame: flipped (TCP z points down) and shifted so the hand grips the
         # plate's end while the peg stands `peg_offset` beside the fingers.
         hz = self.gear_spec.plate_half_size[2]
-        self._tcp_to_module = Pose.create_from_pq(p=[self.gear_spec.peg_offset, 0.0, -hz], q=[0.0, 1.0, 0.0, 0.0], device=self.device)
+        self._tcp_to_module = Pose.create_from_pq(p=[self.gear_spec.peg_offset, 0.0, -hz], q=[0.0, 1.0, 0.0, 0.0],
+                                                  device=self.device)
 
     # ---------------------------------------------------------------- episodes
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
@@ -234,7 +239,8 @@ class GearAssemblyEnv(BaseEnv):
         """Split a flat 16-D action (see ACTION_NAMES) into the per-arm dict ManiSkill expects."""
         action = torch.as_tensor(action, dtype=torch.float32, device=self.device)
         if action.shape[-1] != len(ACTION_NAMES):
-            raise ValueError(f"flat action has {action.shape[-1]} values; GearAssembly-v1 expects {len(ACTION_NAMES)} ({', '.join(ACTION_NAMES)})")
+            raise ValueError(f"flat action has {action.shape[-1]} values; "
+                             f"GearAssembly-v1 expects {len(ACTION_NAMES)} ({', '.join(ACTION_NAMES)})")
         uids = list(self.agent.agents_dict.keys())
         return {uids[0]: action[..., :8], uids[1]: action[..., 8:]}
 
@@ -260,8 +266,8 @@ class GearAssemblyEnv(BaseEnv):
         grasped = self.left_arm.is_grasping(self.gear) & near
         lifted = grasped & (self.gear.pose.p[:, 2] > LIFT_HEIGHT)
         aligned = axis_cos > np.cos(np.deg2rad(ALIGN_TOL_DEG))
-        at_peg = grasped & (radial < PRE_INSERT_RADIUS) & (height >= peg_h - 0.003) & (height <= peg_h + PRE_INSERT_HEIGHT) \
-            & (axis_cos > np.cos(np.deg2rad(15)))
+        at_peg = (grasped & (radial < PRE_INSERT_RADIUS) & (height >= peg_h - 0.003)
+                  & (height <= peg_h + PRE_INSERT_HEIGHT) & (axis_cos > np.cos(np.deg2rad(15))))
         inserted = (radial < self.gear_spec.hole_radius + 0.0015) & (height < peg_h - 0.003) & (height > -0.005)
         success = inserted & aligned & (height < SEATED_TOL)
         stage = torch.where(success, 3, torch.where(at_peg | inserted, 2, torch.where(lifted, 1, 0)))

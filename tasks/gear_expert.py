@@ -86,7 +86,8 @@ class GearAssemblyExpert:
     # ------------------------------------------------------------------ episode
     def reset(self, seed: int | None = None) -> None:
         env, cfg = self.env, self.config
-        rng = np.random.default_rng(cfg.seed if cfg.seed is not None else seed if seed is not None else int(env._episode_seed[0]))
+        rng = np.random.default_rng(cfg.seed if cfg.seed is not None else seed if seed is not None
+                                    else int(env._episode_seed[0]))
         self.grasp_offset = float(rng.uniform(-cfg.grasp_offset, cfg.grasp_offset))
         self._q_seed = self._np(env.left_arm.robot.get_qpos())
         self.phase, self._timer = "approach", 0
@@ -150,7 +151,8 @@ class GearAssemblyExpert:
             rel = peg_rot.T @ (self._gear_world_p() - peg[:3, 3])
             # Correct the radial error (peg frame -> world) and go down; release low on the peg.
             lateral = -self._gain * peg_rot @ np.append(rel[:2], 0.0)
-            down = np.array([0, 0, -cfg.insert_step * self._speed]) if np.linalg.norm(rel[:2]) < spec.clearance else np.zeros(3)
+            down = (np.array([0, 0, -cfg.insert_step * self._speed]) if np.linalg.norm(rel[:2]) < spec.clearance
+                    else np.zeros(3))
             target, _ = self._toward(self._cmd_p + lateral + down, cfg.max_step)
             if rel[2] < cfg.release_height:
                 self.phase, self._timer = "release", 0

@@ -38,7 +38,8 @@ class LeftArmIK:
             active_qmask=ARM_MASK, max_iterations=200)
         return np.asarray(qpos), bool(ok)
 
-    def solve_hand_down(self, p: np.ndarray, finger_dir: np.ndarray, q_seed: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    def solve_hand_down(self, p: np.ndarray, finger_dir: np.ndarray,
+                        q_seed: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """(quat, q) putting the TCP at p with the hand down. The gripper is symmetric, so of the two finger
         directions (+-finger_dir) take the one whose solution is within the joint limits and nearest q_seed;
         None if neither is."""

@@ -13,7 +13,8 @@ from policy_composer.tasks.spec import EnvSettings
 
 
 class Policy(Protocol):
-    """Anything that gives the next flat 16-D action of GearAssembly-v1 (see policy_composer.tasks.gear_assembly.ACTION_NAMES)."""
+    """Anything that gives the next flat 16-D action of GearAssembly-v1
+    (see policy_composer.tasks.gear_assembly.ACTION_NAMES)."""
 
     name: str
 
@@ -73,4 +74,5 @@ def run_episode(env, policy: Policy, seed: int, max_steps: int | None = None, re
             frames.append(tile_cameras(obs, u.camera_names))
         if on_step is not None:
             on_step(steps, info)
-    return EpisodeResult(seed=seed, success=bool(info["success"][0]), steps=steps, stage=int(info["stage"][0]), frames=frames)
+    return EpisodeResult(seed=seed, success=bool(info["success"][0]), steps=steps, stage=int(info["stage"][0]),
+                         frames=frames)

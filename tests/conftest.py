@@ -24,7 +24,8 @@ def insertion_demos(tmp_path_factory):
     from policy_composer.tasks.spec import EnvSettings
 
     root = tmp_path_factory.mktemp("ds") / "gear-insertion-demos"
-    record_recipe(load_recipe("gear-insertion-demos"), root, episodes=2, settings=EnvSettings(resolution=64), progress=False)
+    record_recipe(load_recipe("gear-insertion-demos"), root, episodes=2, settings=EnvSettings(resolution=64),
+                  progress=False)
     return root
 
 

@@ -14,7 +14,8 @@ from policy_composer.policies.subtasks import SUBTASKS
 
 def test_primitive_reproduces_its_demonstration_and_reaches_a_new_goal():
     config = DMPConfig()
-    start, via, goal = np.zeros(7), np.array([0.4, -0.3, 0.2, -0.5, 0.1, 0.6, -0.2]), np.array([0.8, 0.1, 0.3, -1.0, 0.2, 0.9, 0.1])
+    start, via, goal = (np.zeros(7), np.array([0.4, -0.3, 0.2, -0.5, 0.1, 0.6, -0.2]),
+                        np.array([0.8, 0.1, 0.3, -1.0, 0.2, 0.9, 0.1]))
     demo = np.vstack([time_parameterize(np.stack([start, via, goal]), config.dt)])
     demo = np.vstack([start, demo])
     prim = fit_primitive([demo], config)

@@ -36,7 +36,10 @@ def test_forearm_cameras_move_with_their_hands(rgb_env):
     action[0, 0] += 0.3  # swing the left arm's base joint
     for _ in range(10):
         obs, *_ = rgb_env.step(u.flat_to_dict_action(action))
-    changed = lambda c: (obs["sensor_data"][c]["rgb"].float() - obs0["sensor_data"][c]["rgb"].float()).abs().mean()
+
+    def changed(c):
+        return (obs["sensor_data"][c]["rgb"].float() - obs0["sensor_data"][c]["rgb"].float()).abs().mean()
+
     assert changed("left_forearm") > 5 * changed("right_forearm")
 
 

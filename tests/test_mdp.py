@@ -100,7 +100,8 @@ def test_mdp_command_writes_tables_figures_and_report(tmp_path):
     for name in ("mdp19_solution.png", "mdp19_episodes.csv", "mdp19_trace.json", "mdp100_heatmap_lookahead.png",
                  "mdp100_heatmap_lookahead.csv", "mdp_report.md"):
         assert (tmp_path / name).stat().st_size > 0, name
-    rows = list(csv.DictReader(open(tmp_path / "mdp100_heatmap_lookahead.csv")))
+    with open(tmp_path / "mdp100_heatmap_lookahead.csv") as f:
+        rows = list(csv.DictReader(f))
     assert len(rows) == 81 and {float(r["p_dyn"]) for r in rows} == {0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8}
     trace = json.loads((tmp_path / "mdp19_trace.json").read_text())
     assert trace[-1]["reached"] in (0, 20) and set(trace[0]["predicted_mean"]) == {"c1", "c2", "c3", "c4", "c5"}

@@ -17,7 +17,7 @@ from policy_composer.policies.planning import (
     plan_rrt_connect,
     time_parameterize,
 )
-from policy_composer.policies.subtasks import SUBTASKS, LearnedController
+from policy_composer.policies.subtasks import STEP_SPEED_MARGIN, SUBTASKS, LearnedController
 from policy_composer.tasks.gear_assembly import LEFT_START_QPOS
 
 
@@ -25,7 +25,8 @@ def _scene(env) -> SceneCollisionModel:
     u = env.unwrapped
     model = SceneCollisionModel()
     pose = u.peg_module.pose
-    model.set_scene(u.right_arm.robot.get_qpos()[0].numpy(), sapien.Pose(pose.p[0].numpy(), pose.q[0].numpy()), u.gear_spec)
+    model.set_scene(u.right_arm.robot.get_qpos()[0].numpy(), sapien.Pose(pose.p[0].numpy(), pose.q[0].numpy()),
+                    u.gear_spec)
     return model
 
 
@@ -102,6 +103,37 @@ def test_a_command_past_the_velocity_limit_stops_for_safety(state_env):
     second = jump.act(obs)
     assert jump.outcome is Outcome.SAFETY_STOP and "10.00 rad/s" in jump.reason and jump.done(obs)
     np.testing.assert_allclose(second[:7].numpy(), held[:7].numpy())  # the arm holds its last safe target
+
+
+def test_a_learned_controller_limits_its_step_instead_of_stopping(state_env):
+    """A learned policy that asks for a step past the velocity limit moves at the limit, in the direction it asked;
+    only what limiting cannot mend (a target outside the joint range) stops it for safety."""
+
+    class Lunges(LearnedController):
+        target = np.array([0.5, 0.3, 0, 0, 0, 0, 0])  # per step: 10 and 6 rad/s at 20 Hz
+
+        def can_start(self, obs):
+            return True
+
+        def predict(self, obs):
+            return self._last + self.target, -1.0
+
+    obs, _ = state_env.reset(seed=0)
+    lunges = Lunges(state_env, SUBTASKS["pick"], "lunges")
+    lunges.start(obs)
+    q0 = lunges.left_qpos(obs)
+    first = lunges.act(obs)[:7].numpy().astype(np.float64)
+    step = first - q0
+    assert lunges.outcome is Outcome.RUNNING, lunges.reason
+    speed = np.abs(step) * state_env.unwrapped.control_freq
+    np.testing.assert_allclose(speed[0], STEP_SPEED_MARGIN * VELOCITY_LIMIT[0], rtol=1e-4)  # the fastest joint
+    np.testing.assert_allclose(step[1] / step[0], 0.3 / 0.5, rtol=1e-4)  # the direction is kept
+    lunges.target = np.array([0, 0, 0, 0, 0, 0, 10.0])  # far outside joint 7's range
+    for _ in range(200):
+        lunges.act(obs)
+        if lunges.done(obs):
+            break
+    assert lunges.outcome is Outcome.SAFETY_STOP and "outside the Panda's limits" in lunges.reason
 
 
 def test_a_learned_insertion_that_lets_go_above_the_peg_keeps_the_gear_and_fails(state_env):

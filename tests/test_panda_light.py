@@ -17,7 +17,9 @@ def test_decimated_meshes_are_cached_smaller_and_keep_their_materials(tmp_path, 
         stock, light = trimesh.load(glb, force="scene"), trimesh.load(light_dir / glb.name, force="scene")
         stock_faces += sum(len(g.faces) for g in stock.geometry.values())
         light_faces += sum(len(g.faces) for g in light.geometry.values())
-        colors = lambda s: sorted(tuple(g.visual.material.baseColorFactor) for g in s.geometry.values())
+        def colors(scene):
+            return sorted(tuple(g.visual.material.baseColorFactor) for g in scene.geometry.values())
+
         assert colors(light) == colors(stock), glb.name
         # Decimation keeps the shape: bounding boxes agree within 5 mm.
         assert abs(light.bounds - stock.bounds).max() < 0.005, glb.name

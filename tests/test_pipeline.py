@@ -81,7 +81,8 @@ def test_an_interrupted_recording_stage_keeps_its_episodes(tmp_path):
     with pytest.raises(KeyboardInterrupt):
         run_stages([Stage(stage.name, stage.title, stage.config, interrupted, resumable=True)], folder,
                    log=lambda _: None)
-    records = run_stages([Stage(stage.name, stage.title, stage.config, run, resumable=True)], folder, log=lambda _: None)
+    records = run_stages([Stage(stage.name, stage.title, stage.config, run, resumable=True)], folder,
+                         log=lambda _: None)
     assert records["record"].facts == {"episodes": 3, "recorded_now": 2}
 
 
@@ -141,7 +142,7 @@ def _interrupt_once_a_full_task_demo_is_saved(cmd: list[str], env: dict, out: Pa
     proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # as in a terminal
     streams = {"stdout": [], "stderr": []}
-    readers = [threading.Thread(target=lambda f=getattr(proc, name), acc=acc: acc.extend(f), daemon=True)
+    readers = [threading.Thread(target=acc.extend, args=(getattr(proc, name),), daemon=True)
                for name, acc in streams.items()]  # drained as it runs: a full pipe would stall the job
     for reader in readers:
         reader.start()

@@ -1,8 +1,10 @@
-"""LeRobot datasets of GearAssembly-v1 rollouts: what is written is what loads, labels, recipes, bad input, LeRobot's trainer."""
+"""LeRobot datasets of GearAssembly-v1 rollouts: what is written is what loads, labels, recipes, bad input,
+LeRobot's trainer."""
 
 from __future__ import annotations
 
 import hashlib
+import importlib.metadata
 import json
 import os
 import subprocess
@@ -18,7 +20,7 @@ import torch
 import policy_composer.tasks.gear_assembly  # noqa: F401  (registers GearAssembly-v1)
 from policy_composer.data import journal
 from policy_composer.data.catalog import HubUnreachable, drop_controller, push_dataset, summarize
-from policy_composer.data.features import DatasetError, open_dataset
+from policy_composer.data.features import LEROBOT_VERSION, DatasetError, open_dataset
 from policy_composer.data.recipes import RecipeError, available_recipes, load_recipe
 from policy_composer.data.recorder import LeRobotRecorder
 from policy_composer.learning.checkpoint import CheckpointError
@@ -32,7 +34,8 @@ BIN = Path(sys.executable).parent
 
 
 def _tree_digest(root: Path) -> dict[str, str]:
-    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(root.rglob("*")) if p.is_file()}
+    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(root.rglob("*"))
+            if p.is_file()}
 
 
 def test_reloaded_dataset_equals_what_was_written(tmp_path):
@@ -59,7 +62,8 @@ def test_reloaded_dataset_equals_what_was_written(tmp_path):
     assert ds.meta.features["observation.state"]["names"] == list(STATE_NAMES)
     assert ds.meta.features["action"]["names"] == list(ACTION_NAMES)
     frames = [ds[i] for i in range(25)]
-    np.testing.assert_array_equal(np.stack([f["observation.state"].numpy() for f in frames]), np.stack(written["state"]))
+    np.testing.assert_array_equal(np.stack([f["observation.state"].numpy() for f in frames]),
+                                  np.stack(written["state"]))
     np.testing.assert_array_equal(np.stack([f["action"].numpy() for f in frames]), np.stack(written["action"]))
     assert [int(f["stage"]) for f in frames] == written["stage"]
     assert all(float(f["progress"]) == -1.0 for f in frames)  # failed (unfinished) episode: no progress target
@@ -97,10 +101,12 @@ def test_insertion_demos_labels_and_variety(insertion_demos):
 def test_dataset_info_and_push_without_network(insertion_demos, monkeypatch):
     out = subprocess.run([str(BIN / "policy-composer"), "dataset", "info", str(insertion_demos)],
                          capture_output=True, text=True, check=True).stdout
-    assert "episodes:    2" in out and "task done:   100% of episodes" in out and "head 64x64x3" in out and "fps: 20" in out
+    assert ("episodes:    2" in out and "task done:   100% of episodes" in out and "head 64x64x3" in out
+            and "fps: 20" in out)
     before = _tree_digest(insertion_demos)
     env = {**os.environ, "HF_HUB_OFFLINE": "1"}
-    res = subprocess.run([str(BIN / "policy-composer"), "dataset", "push", str(insertion_demos), "--repo-id", "me/gears"],
+    res = subprocess.run([str(BIN / "policy-composer"), "dataset", "push", str(insertion_demos),
+                          "--repo-id", "me/gears"],
                          capture_output=True, text=True, env=env, timeout=120)
     assert res.returncode == 2 and "unreachable" in res.stderr and "intact" in res.stderr
     assert _tree_digest(insertion_demos) == before
@@ -132,6 +138,12 @@ def test_bad_input_is_named(insertion_demos, tmp_path):
         open_dataset(insertion_demos, required={"observation.state": (14,)})
     with pytest.raises(DatasetError, match="recorded at 20 fps, expected 30"):
         open_dataset(insertion_demos, fps=30)
+    old = tmp_path / "old"
+    (old / "meta").mkdir(parents=True)
+    (old / "meta" / "info.json").write_text(json.dumps({"codebase_version": "v2.1"}))
+    with pytest.raises(DatasetError, match=f"reads v3.0 \\(lerobot {LEROBOT_VERSION}\\); convert it"):
+        open_dataset(old)
+    assert importlib.metadata.version("lerobot") == LEROBOT_VERSION  # the checks name the release installed
     env = gym.make("GearAssembly-v1", obs_mode="rgb", camera_width=32, camera_height=32)
     with pytest.raises(FileExistsError, match="--resume"):
         LeRobotRecorder(env, insertion_demos, task="x")
@@ -146,7 +158,8 @@ def test_bad_input_is_named(insertion_demos, tmp_path):
     assert rollouts.cameras == ("head", "left_forearm")
     with pytest.raises(LibraryError, match="no controller named 'mp_fly'"):
         record_recipe(replace(rollouts, controllers=("mp_fly",)), tmp_path / "ro1", settings=EnvSettings(resolution=32))
-    missing = LibrarySources(models={"dmp": str(tmp_path / "none"), "cnn": str(tmp_path / "none")})  # not results/models
+    missing = LibrarySources(models={"dmp": str(tmp_path / "none"),
+                                     "cnn": str(tmp_path / "none")})  # not results/models
     with pytest.raises(CheckpointError, match="no CNN policy checkpoint .* train one with `policy-composer train"):
         record_recipe(rollouts, tmp_path / "ro2", settings=EnvSettings(resolution=32), sources=missing)
     with pytest.raises(FileNotFoundError, match="train dmp"):
@@ -162,7 +175,8 @@ def test_controller_rollouts_name_their_controller(controller_rollouts):
     sidecar = json.loads((root / "meta" / "policy_composer.json").read_text())
     assert [e["controller_name"] for e in sidecar["episodes"]] == ["mp_pick", "mp_insert"]
     # The pick has no perception error, and the insertion's start (seed 1) holds the gear 0.3 mm off: both succeed.
-    assert [(e["seed"], e["outcome"], e["success"]) for e in sidecar["episodes"]] == [(0, "done", True), (1, "done", True)]
+    assert ([(e["seed"], e["outcome"], e["success"]) for e in sidecar["episodes"]]
+            == [(0, "done", True), (1, "done", True)])
     ds = open_dataset(root, required={"observation.images.head": (32, 32, 3), "observation.images.left_forearm": None})
     assert "observation.images.right_forearm" not in ds.meta.features
     names = sidecar["controllers"]
@@ -200,8 +214,10 @@ def test_dropping_a_controllers_rollouts_keeps_the_others(controller_rollouts, t
     assert drop_controller(root, "mp_insert") == 1
     after = open_dataset(root)
     assert after.num_episodes == 1 and after.num_frames == len(pick_rows)
-    np.testing.assert_array_equal(np.stack(after.hf_dataset["observation.state"]), np.stack(pick_rows["observation.state"]))
-    assert [e["controller_name"] for e in json.loads((root / "meta" / "policy_composer.json").read_text())["episodes"]] == ["mp_pick"]
+    np.testing.assert_array_equal(np.stack(after.hf_dataset["observation.state"]),
+                                  np.stack(pick_rows["observation.state"]))
+    assert [e["controller_name"]
+            for e in json.loads((root / "meta" / "policy_composer.json").read_text())["episodes"]] == ["mp_pick"]
     with pytest.raises(DatasetError, match="no episodes of controller 'mp_insert'"):
         drop_controller(root, "mp_insert")
 

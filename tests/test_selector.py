@@ -16,8 +16,7 @@ from policy_composer.data.frames import load_frames
 from policy_composer.learning.checkpoint import CheckpointError
 from policy_composer.policies.library import LibrarySources, build_library
 from policy_composer.selector.compose import Activation, ComposedEpisode, Eligibility, compose_episode
-from policy_composer.selector.configuration import ComposeConfig
-from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
+from policy_composer.selector.configuration import ComposeConfig, DynamicsConfig, GoalScoreConfig, VAEConfig
 from policy_composer.selector.dynamics import load_dynamics, transition_pairs
 from policy_composer.selector.evaluate import evaluate_goal_scores
 from policy_composer.selector.goal_score import goal_score_metrics
@@ -48,7 +47,8 @@ def test_transition_pairs_stay_within_episodes():
 
 def test_models_learn_and_the_goal_score_rises_along_its_demos(world, full_task_demos, tmp_path):
     root, timings = world
-    assert set(timings) == {"vae", "dynamics mp_pick", "dynamics mp_insert", "goal score head", "goal score left_forearm"}
+    assert set(timings) == {"vae", "dynamics mp_pick", "dynamics mp_insert", "goal score head",
+                            "goal score left_forearm"}
     for model in ("vae", "dynamics/mp_pick", "dynamics/mp_insert", "goal_score/head"):
         losses = json.loads((root / model / "train_log.json").read_text())["losses"]
         assert losses[-1] < losses[0], (model, losses)

@@ -47,7 +47,8 @@ class CNNController(LearnedController):
         return q, gripper
 
 
-def hand_step(ik: LeftArmIK, command: np.ndarray, displacement: np.ndarray, quat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def hand_step(ik: LeftArmIK, command: np.ndarray, displacement: np.ndarray,
+              quat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Move the commanded TCP position (world) by `displacement` (m, in the hand's frame), orientation `quat`:
     the new command and its joint targets (7), solved from the measured joints."""
     command = command + quat2mat(np0(ik.arm.tcp.pose.q)) @ displacement

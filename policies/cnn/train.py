@@ -37,7 +37,8 @@ def previous_commands(state16: torch.Tensor, action16: torch.Tensor, episode_ind
     return prev
 
 
-def action_target(state16: torch.Tensor, action16: torch.Tensor, prev16: torch.Tensor, action_space: str) -> torch.Tensor:
+def action_target(state16: torch.Tensor, action16: torch.Tensor, prev16: torch.Tensor,
+                  action_space: str) -> torch.Tensor:
     """What the policy predicts from a recorded frame, in `action_space` (see ACTION_SPACES), with the gripper
     command last: the change from the previous command, not from the measured joints, since the gap between a
     command and where the arm is depends on the arm's velocity, which one image does not show."""
@@ -65,7 +66,8 @@ def load_demonstrations(root: str | Path, config: CNNPolicyConfig, episodes: lis
 
 
 def train_cnn_policy(root: str | Path, config: CNNPolicyConfig, out: str | Path | None = None,
-                     progress: bool = True, data: dict[str, torch.Tensor] | None = None) -> tuple[CNNPolicy, list[float]]:
+                     progress: bool = True,
+                     data: dict[str, torch.Tensor] | None = None) -> tuple[CNNPolicy, list[float]]:
     """Fit the policy by maximum likelihood of the demonstrated actions; returns it and the loss per epoch."""
     t0 = time.perf_counter()
     torch.manual_seed(config.seed)
@@ -102,7 +104,8 @@ def load_cnn_policy(path: str | Path, camera: str | None = None, state_dim: int 
     config = load_config(path, CNNPolicyConfig, "CNN policy", "policy-composer train policy")
     if camera is not None and config.camera != camera:
         raise CheckpointError(f"checkpoint {path} was trained on camera {config.camera!r}, but this controller reads "
-                              f"{camera!r}; train one for {camera!r} or configure the controller with {config.camera!r}")
+                              f"{camera!r}; train one for {camera!r} or configure the controller with "
+                              f"{config.camera!r}")
     if state_dim is not None and config.state_dim != state_dim:
         raise CheckpointError(f"checkpoint {path} takes a state of size {config.state_dim}, this controller gives "
                               f"{state_dim}")

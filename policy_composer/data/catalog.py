@@ -138,8 +138,8 @@ def drop_controller(root: str | Path, controller: str) -> int:
     sidecar = read_sidecar(root)
     drop = [i for i, e in enumerate(sidecar.get("episodes", [])) if e.get("controller_name") == controller]
     if not drop:
-        raise DatasetError(f"{root} has no episodes of controller {controller!r} "
-                           f"(it has {sorted({e.get('controller_name') for e in sidecar.get('episodes', [])} - {None})})")
+        raise DatasetError(f"{root} has no episodes of controller {controller!r} (it has "
+                           f"{sorted({e.get('controller_name') for e in sidecar.get('episodes', [])} - {None})})")
     new_root = root.with_name(root.name + ".dropping")
     shutil.rmtree(new_root, ignore_errors=True)
     delete_episodes(open_dataset(root), drop, output_dir=new_root, repo_id=sidecar.get("repo_id"))

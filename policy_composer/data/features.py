@@ -12,7 +12,8 @@ from pathlib import Path
 
 from policy_composer.tasks.spec import ACTION_NAMES, CAMERA_NAMES, STATE_NAMES
 
-FORMAT_VERSION = "v3.0"  # lerobot 0.4.4's dataset format
+LEROBOT_VERSION = "0.6.1"  # the release pyproject.toml pins; its datasets are of FORMAT_VERSION
+FORMAT_VERSION = "v3.0"
 SIDECAR = "meta/policy_composer.json"  # recipe, seeds, success and controller names per episode
 
 
@@ -52,7 +53,8 @@ def read_info(root: str | Path) -> dict:
     """meta/info.json of a LeRobot dataset, or a DatasetError that says why `root` is not one."""
     root = Path(root)
     if not root.exists():
-        raise DatasetError(f"no dataset at {root}: the path does not exist (record one with `policy-composer record RECIPE`)")
+        raise DatasetError(f"no dataset at {root}: the path does not exist "
+                           "(record one with `policy-composer record RECIPE`)")
     info_path = root / "meta" / "info.json"
     if not info_path.is_file():
         raise DatasetError(f"{root} is not a LeRobot dataset: it has no meta/info.json "
@@ -60,7 +62,8 @@ def read_info(root: str | Path) -> dict:
     info = json.loads(info_path.read_text())
     if info.get("codebase_version") != FORMAT_VERSION:
         raise DatasetError(f"{root} is a LeRobot dataset of format {info.get('codebase_version')}; this project reads "
-                           f"{FORMAT_VERSION} (lerobot 0.4.4); convert it with lerobot's v30 conversion script")
+                           f"{FORMAT_VERSION} (lerobot {LEROBOT_VERSION}); convert it with lerobot's v30 conversion "
+                           "script")
     return info
 
 

@@ -1,6 +1,6 @@
 """A write-ahead journal that makes saving one episode into a LeRobotDataset all-or-nothing.
 
-lerobot 0.4.4 writes an episode in several steps (data parquet, episode metadata, videos, info.json,
+lerobot (0.4 to 0.6) writes an episode in several steps (data parquet, episode metadata, videos, info.json,
 stats.json) and nothing is loadable until `finalize()`. The recorder saves each episode into new files
 (it reopens the dataset per episode, lerobot's own resume path), so the committed state is a set of files
 that later episodes never touch, plus a few small files they rewrite. Before saving, `begin` notes which

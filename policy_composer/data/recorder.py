@@ -49,7 +49,9 @@ class LeRobotRecorder(gym.Wrapper):
     def __init__(self, env: gym.Env, root: str | Path, task: str, repo_id: str | None = None, resume: bool = False,
                  metadata: dict | None = None, vcodec: str = VCODEC, streaming_encoding: bool = True):
         super().__init__(env)
-        self.video = {"vcodec": vcodec, "streaming_encoding": streaming_encoding}
+        from lerobot.configs.video import RGBEncoderConfig
+
+        self.video = {"rgb_encoder": RGBEncoderConfig(vcodec=vcodec), "streaming_encoding": streaming_encoding}
         u = env.unwrapped
         if u.num_envs != 1:
             raise ValueError(f"the recorder writes one episode at a time; got num_envs={u.num_envs}")
@@ -160,7 +162,7 @@ class LeRobotRecorder(gym.Wrapper):
         with interrupt.held_back(), _quiet_lerobot():  # an episode is written whole
             journal.begin(self.root)
             if self.root.exists():  # lerobot's resume path: this episode goes into new files
-                dataset = LeRobotDataset(self.repo_id, root=self.root, **self.video)
+                dataset = LeRobotDataset.resume(self.repo_id, root=self.root, **self.video)
             else:
                 dataset = LeRobotDataset.create(self.repo_id, fps=self.fps, features=self.features, root=self.root,
                                                 robot_type="panda_pair", use_videos=True, **self.video)
