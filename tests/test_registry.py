@@ -1,0 +1,68 @@
+"""The registry of controller kinds: one registration puts a new kind in the library, the recipes, Table I and the
+command line (the README's "add your own controller kind", run as written)."""
+
+from __future__ import annotations
+
+import pytest
+
+from policy_composer.cli import build_parser
+from policy_composer.data.recipes import load_recipe
+from policy_composer.policies import registry
+from policy_composer.policies.library import LibrarySources, all_names, build_library, cameras_needed, names_of_kind
+from policy_composer.policies.registry import ControllerKind, LibraryError, get_kind, register_kind
+from policy_composer.policies.subtasks import LearnedController
+from policy_composer.record import recipe_controllers
+
+
+class WiggleInsert(LearnedController):
+    def predict(self, obs):
+        q = self.left_qpos(obs)
+        q[6] += 0.02 * (-1) ** self._steps
+        return q, -1.0
+
+
+def build(env, subtask, model, max_grasp_offset):
+    return WiggleInsert(env, subtask, name=f"wiggle_{subtask.name}", max_steps=80)
+
+
+def load(path):
+    return {"camera": "right_forearm", "path": path}
+
+
+def cameras(model):
+    return (model["camera"],)
+
+
+@pytest.fixture
+def wiggle():
+    saved = dict(registry._KINDS)
+    kind = register_kind(ControllerKind("wiggle", "Wiggle", ("insert",), build=f"{__name__}:build",
+                                        load=f"{__name__}:load", model_path="results/models/wiggle",
+                                        train_command="train it yourself", cameras=f"{__name__}:cameras"))
+    yield kind
+    registry._KINDS.clear()
+    registry._KINDS.update(saved)
+
+
+def test_the_built_in_kinds():
+    assert [(k.name, k.label, k.subtasks) for k in registry.kinds().values()] == [
+        ("mp", "MP", ("pick", "move", "insert")), ("dmp", "DMP", ("pick", "move", "insert")),
+        ("cnn", "CNN", ("insert",))]
+    assert all_names() == ("mp_pick", "mp_move", "mp_insert", "dmp_pick", "dmp_move", "dmp_insert", "cnn_insert")
+    assert names_of_kind("dmp") == names_of_kind("DMP") == ("dmp_pick", "dmp_move", "dmp_insert")
+    with pytest.raises(LibraryError, match="unknown controller kind 'RL'; the library has MP, DMP, CNN"):
+        get_kind("RL")
+
+
+def test_one_registration_reaches_every_reader(wiggle, state_env, tmp_path):
+    assert "wiggle_insert" in all_names() and names_of_kind("Wiggle") == ("wiggle_insert",)
+    assert recipe_controllers(load_recipe("gear-controller-rollouts"))[-1] == "wiggle_insert"
+    sources = LibrarySources(models={"wiggle": str(tmp_path)})
+    assert cameras_needed(["mp_pick", "wiggle_insert"], sources) == ("right_forearm",)
+    controller = build_library(state_env, ["wiggle_insert"], sources)["wiggle_insert"]
+    assert isinstance(controller, WiggleInsert) and controller.subtask.name == "insert" and controller.max_steps == 80
+    args = build_parser().parse_args(["compose", "--wiggle", "elsewhere"])
+    assert args.wiggle == "elsewhere" and args.cnn == "results/models/cnn_insert"
+    assert build_parser().parse_args(["evaluate", "controllers"]).kinds == "MP,DMP,CNN,Wiggle"
+    with pytest.raises(LibraryError, match="registered twice"):
+        register_kind(ControllerKind("wiggle", "Wiggle", ("pick",), build=f"{__name__}:build"))
