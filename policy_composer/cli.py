@@ -11,7 +11,7 @@ from pathlib import Path
 from policy_composer.arguments import add_config_options, config_from
 from policy_composer.demo import PROFILES
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
-from policy_composer.policies.library import LibrarySources
+from policy_composer.policies.library import LeRobotSource, LibrarySources
 from policy_composer.policies.registry import kinds
 from policy_composer.selector.configuration import ComposeConfig, DynamicsConfig, GoalScoreConfig, VAEConfig
 from policy_composer.tasks.spec import CAMERA_NAMES, EnvSettings
@@ -27,8 +27,6 @@ def _dataset(recipe: str) -> str:
 
 def _sources(args: argparse.Namespace):
     """The library's model sources from the per-kind flags (`model_options`) and --lerobot."""
-    from policy_composer.policies.library import LeRobotSource
-
     return LibrarySources(models={k.name: getattr(args, k.name) for k in kinds().values() if k.model_path},
                           lerobot=tuple(LeRobotSource(*spec.split(":", 1)) for spec in getattr(args, "lerobot", ())),
                           max_grasp_offset=getattr(args, "grasp_offset", DEFAULT_GRASP_OFFSET_MM) / 1000.0)
