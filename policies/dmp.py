@@ -20,18 +20,11 @@ from pathlib import Path
 import numpy as np
 
 from policy_composer.policies.arm import Outcome, Segment, run_activation
+from policy_composer.policies.configuration_dmp import DMPConfig
 from policy_composer.policies.planning import VELOCITY_LIMIT, time_parameterize
 from policy_composer.policies.subtasks import SUBTASKS, SubtaskController, Waypoint
 
 MIN_DEMO_STEPS = 5  # shorter movements (a few mm of alignment) are not worth a DMP: they go straight in joint space
-
-
-@dataclass
-class DMPConfig:
-    n_weights_per_dim: int = 10
-    dt: float = 0.05  # the env's control period
-    speed: float = 0.4  # a movement never runs faster than this fraction of the joint velocity limits
-    smooth_scaling: bool = True  # Pastor et al.: no jump when the new start differs from the demonstration's
 
 
 @dataclass

@@ -12,6 +12,36 @@ from policy_composer.learning.config import default_of
 _TYPES = {"int": int, "float": float, "str": str}
 
 
+def at_least(low: float, kind: type = int):
+    """An argparse type: a number of `kind` no smaller than `low` (a count of episodes, a step)."""
+    def parse(text: str):
+        value = _number(text, kind)
+        if value < low:
+            raise argparse.ArgumentTypeError(f"must be at least {low}, not {text}")
+        return value
+
+    return parse
+
+
+def between(low: float, high: float, unit: str = "", kind: type = float):
+    """An argparse type: a number of `kind` in [low, high], in the flag's own unit."""
+    def parse(text: str):
+        value = _number(text, kind)
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"must be between {low:g} and {high:g}{unit}, not {text}")
+        return value
+
+    return parse
+
+
+def _number(text: str, kind: type):
+    try:
+        return kind(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be {'a whole number' if kind is int else 'a number'}, "
+                                         f"not {text!r}") from None
+
+
 def add_config_options(parser: argparse.ArgumentParser, config_cls: type, flags: dict[str, str]) -> None:
     """One `--FLAG` per entry of `flags` (field name -> flag name) of `config_cls`."""
     by_name = {f.name: f for f in fields(config_cls)}
@@ -19,9 +49,10 @@ def add_config_options(parser: argparse.ArgumentParser, config_cls: type, flags:
         f = by_name[name]
         default = default_of(config_cls, name)
         help_text = f.metadata.get("help") or name.replace("_", " ")
+        kind, minimum = _TYPES[str(f.type).split(" |")[0]], f.metadata.get("minimum")
         parser.add_argument(f"--{flag}", dest=f"{config_cls.__name__}.{name}", default=default,
-                            type=_TYPES[str(f.type).split(" |")[0]], choices=f.metadata.get("choices"),
-                            help=f"{help_text} (default: {default})")
+                            type=kind if minimum is None else at_least(minimum, kind),
+                            choices=f.metadata.get("choices"), help=f"{help_text} (default: {default})")
 
 
 def config_from(args: argparse.Namespace, config_cls: type, **values: Any):

@@ -8,13 +8,14 @@ import sys
 import time
 from pathlib import Path
 
-from policy_composer.arguments import add_config_options, config_from
+from policy_composer.arguments import add_config_options, at_least, between, config_from
 from policy_composer.demo import PROFILES
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
+from policy_composer.policies.configuration_dmp import FIT_EPISODES, FIT_FIRST_SEED
 from policy_composer.policies.library import LeRobotSource, LibrarySources
-from policy_composer.policies.registry import kinds
+from policy_composer.policies.registry import LibraryError, kinds
 from policy_composer.selector.configuration import ComposeConfig, DynamicsConfig, GoalScoreConfig, VAEConfig
-from policy_composer.tasks.spec import CAMERA_NAMES, EnvSettings
+from policy_composer.tasks.spec import CAMERA_NAMES, CLEARANCE_MM, RESOLUTION, EnvSettings
 
 DEFAULT_GRASP_OFFSET_MM = LibrarySources.max_grasp_offset * 1000  # the expert's and the pick-up's
 MODELS = Path("results/models")
@@ -28,8 +29,20 @@ def _dataset(recipe: str) -> str:
 def _sources(args: argparse.Namespace):
     """The library's model sources from the per-kind flags (`model_options`) and --lerobot."""
     return LibrarySources(models={k.name: getattr(args, k.name) for k in kinds().values() if k.model_path},
-                          lerobot=tuple(LeRobotSource(*spec.split(":", 1)) for spec in getattr(args, "lerobot", ())),
+                          lerobot=tuple(_lerobot_source(spec) for spec in getattr(args, "lerobot", ())),
                           max_grasp_offset=getattr(args, "grasp_offset", DEFAULT_GRASP_OFFSET_MM) / 1000.0)
+
+
+def _lerobot_source(spec: str) -> LeRobotSource:
+    """--lerobot PATH:SUBTASK, checked before any work starts."""
+    path, _, subtask = spec.rpartition(":")
+    subtasks = tuple(dict.fromkeys(s for k in kinds().values() for s in k.subtasks))
+    if not path or subtask not in subtasks:
+        raise LibraryError(f"--lerobot {spec!r}: give PATH:SUBTASK, SUBTASK one of {', '.join(subtasks)}")
+    if not (Path(path) / "config.json").is_file():
+        raise LibraryError(f"--lerobot {spec!r}: no LeRobot policy checkpoint at {path} (expected the "
+                           f"`pretrained_model` folder that lerobot-train saves, with its config.json)")
+    return LeRobotSource(path, subtask)
 
 
 def _make_env(obs_mode: str, args: argparse.Namespace, cameras: tuple[str, ...] | None = None, **kwargs):
@@ -277,14 +290,14 @@ def build_parser() -> argparse.ArgumentParser:
     cameras = ",".join(CAMERA_NAMES)
 
     def env_options(p: argparse.ArgumentParser, grasp: bool = True) -> None:
-        p.add_argument("--resolution", type=int, default=EnvSettings.resolution,
+        p.add_argument("--resolution", type=between(*RESOLUTION, " pixels", int), default=EnvSettings.resolution,
                        help="camera width and height in pixels")
-        p.add_argument("--clearance", type=float, default=EnvSettings.clearance_mm,
+        p.add_argument("--clearance", type=between(*CLEARANCE_MM, " mm"), default=EnvSettings.clearance_mm,
                        help="radial clearance between peg and hole, mm")
         if grasp:
-            p.add_argument("--grasp-offset", type=float, default=DEFAULT_GRASP_OFFSET_MM,
+            p.add_argument("--grasp-offset", type=at_least(0, float), default=DEFAULT_GRASP_OFFSET_MM,
                            help="max grasp offset of the gear in the gripper, mm")
-        p.add_argument("--seed", type=int, default=0, help="first seed")
+        p.add_argument("--seed", type=at_least(0), default=0, help="first seed")
 
     def model_options(p: argparse.ArgumentParser) -> None:
         """--KIND for every registered kind that loads a trained model, and --lerobot checkpoints."""
@@ -303,7 +316,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.set_defaults(func=cmd_demo)
     expert = sub.add_parser("expert", help="the scripted expert on a few seeds, with videos of the three cameras")
     env_options(expert)
-    expert.add_argument("--episodes", type=int, default=3)
+    expert.add_argument("--episodes", type=at_least(1), default=3)
     expert.add_argument("--out", default="results/expert", help="folder for the videos")
     expert.set_defaults(func=cmd_expert)
 
@@ -311,14 +324,14 @@ def build_parser() -> argparse.ArgumentParser:
     ev_sub = evaluate.add_subparsers(dest="what", required=True)
     ev_expert = ev_sub.add_parser("expert", help="full-task success of the scripted expert")
     env_options(ev_expert)
-    ev_expert.add_argument("--episodes", type=int, default=50)
+    ev_expert.add_argument("--episodes", type=at_least(1), default=50)
     ev_expert.add_argument("--open-loop", action="store_true",
                            help="carry and insert assuming a centred grasp (shows why insertion needs feedback)")
     ev_expert.set_defaults(func=cmd_evaluate_expert)
     ev_ctrl = ev_sub.add_parser("controllers", help="each controller kind on each subtask (paper Table I)")
     env_options(ev_ctrl)
     labels = ",".join(k.label for k in kinds().values())
-    ev_ctrl.add_argument("--trials", type=int, default=10)
+    ev_ctrl.add_argument("--trials", type=at_least(1), default=10)
     ev_ctrl.add_argument("--kinds", default=labels, help=f"comma-separated kinds (default: {labels})")
     model_options(ev_ctrl)
     ev_ctrl.add_argument("--out", default="results/controllers")
@@ -332,13 +345,13 @@ def build_parser() -> argparse.ArgumentParser:
         "camera": "camera", "backbone": "backbone", "epochs": "epochs", "image_size": "image-size",
         "num_mixtures": "mixtures", "action_space": "action-space", "proprioception": "proprioception",
         "shift": "shift", "batch_size": "batch-size", "seed": "seed"})
-    tr_policy.add_argument("--threads", type=int, default=2)
+    tr_policy.add_argument("--threads", type=at_least(1), default=2)
     tr_policy.add_argument("--out", default=kinds()["cnn"].model_path)
     tr_policy.set_defaults(func=cmd_train_policy)
     tr_dmp = tr_sub.add_parser("dmp", help="fit the DMPs to the motion planner's trajectories")
     env_options(tr_dmp, grasp=False)
-    tr_dmp.add_argument("--episodes", type=int, default=5)
-    tr_dmp.set_defaults(seed=100)
+    tr_dmp.add_argument("--episodes", type=at_least(1), default=FIT_EPISODES, help="planner episodes to fit to")
+    tr_dmp.set_defaults(seed=FIT_FIRST_SEED)
     tr_dmp.add_argument("--out", default=kinds()["dmp"].model_path)
     tr_dmp.set_defaults(func=cmd_train_dmp)
 
@@ -351,7 +364,7 @@ def build_parser() -> argparse.ArgumentParser:
                                                   "num_mixtures": "mixtures"})
     tr_world.add_argument("--controllers", default=None, help="comma-separated (default: every controller recorded)")
     tr_world.add_argument("--reuse-vae", action="store_true", help="keep the VAE in --out; train only dynamics models")
-    tr_world.add_argument("--threads", type=int, default=2)
+    tr_world.add_argument("--threads", type=at_least(1), default=2)
     tr_world.add_argument("--out", default=WORLD)
     tr_world.set_defaults(func=cmd_train_world_model)
     tr_goal = tr_sub.add_parser("goal-score", help="one goal scorer per camera on the full-task demos")
@@ -359,7 +372,7 @@ def build_parser() -> argparse.ArgumentParser:
     tr_goal.add_argument("--cameras", default=cameras)
     add_config_options(tr_goal, GoalScoreConfig, {"epochs": "epochs", "image_size": "image-size",
                                                   "num_mixtures": "mixtures"})
-    tr_goal.add_argument("--threads", type=int, default=2)
+    tr_goal.add_argument("--threads", type=at_least(1), default=2)
     tr_goal.add_argument("--out", default=WORLD, help="the world-model folder (its VAE, if any, is used)")
     tr_goal.set_defaults(func=cmd_train_goal_score)
 
@@ -372,15 +385,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     compose = sub.add_parser("compose", help="the selector composes the library in GearAssembly-v1 rollouts")
     env_options(compose)
-    compose.add_argument("--episodes", type=int, default=10)
+    compose.add_argument("--episodes", type=at_least(1), default=10)
     compose.add_argument("--models", default=WORLD, help="world-model folder (train world-model, goal-score)")
     model_options(compose)
     add_config_options(compose, ComposeConfig, {"horizon": "horizon", "samples": "samples",
                                                 "reselect_every": "reselect-every", "max_failures": "max-failures"})
-    compose.add_argument("--knock-out-step", type=int, default=None,
+    compose.add_argument("--knock-out-step", type=at_least(0), default=None,
                          help="perturbation: knock the gear out of the gripper at this control step "
                               "(or when next lifted)")
-    compose.add_argument("--videos", type=int, default=1, help="episodes to write a video of")
+    compose.add_argument("--videos", type=at_least(0), default=1, help="episodes to write a video of")
     compose.add_argument("--resume", action="store_true",
                          help="keep the episodes already in --out; run the other seeds")
     compose.add_argument("--out", default="results/compose")
@@ -389,7 +402,7 @@ def build_parser() -> argparse.ArgumentParser:
     record = sub.add_parser("record", help="record a dataset recipe (datasets/recipes/) into a LeRobotDataset")
     record.add_argument("recipe", help="recipe name (gear-insertion-demos, gear-full-task-demos, "
                                        "gear-controller-rollouts) or path of a .toml recipe")
-    record.add_argument("--episodes", type=int, default=None,
+    record.add_argument("--episodes", type=at_least(1), default=None,
                         help="episodes the dataset should hold (default: the recipe's)")
     record.add_argument("--root", default=None, help="dataset folder (default: datasets/RECIPE)")
     record.add_argument("--resume", action="store_true", help="continue an interrupted or shorter recording")
@@ -402,11 +415,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     mdp = sub.add_parser("mdp", help="the paper's random-walk MDP experiments (19 and 100 states)")
     mdp.add_argument("--out", default="results/mdp")
-    mdp.add_argument("--episodes-19", type=int, default=1000, help="episodes of the 19-state experiment")
-    mdp.add_argument("--episodes-100", type=int, default=100, help="episodes per heatmap cell")
+    mdp.add_argument("--episodes-19", type=at_least(1), default=1000, help="episodes of the 19-state experiment")
+    mdp.add_argument("--episodes-100", type=at_least(1), default=100, help="episodes per heatmap cell")
     mdp.add_argument("--noise-unit", choices=("lookahead", "step", "both"), default="both",
                      help="dynamics noise per n-step look-ahead, per model step, or both heatmaps")
-    mdp.add_argument("--seed", type=int, default=0)
+    mdp.add_argument("--seed", type=at_least(0), default=0)
     mdp.set_defaults(func=cmd_mdp)
 
     dataset = sub.add_parser("dataset", help="inspect and share recorded LeRobot datasets")
@@ -432,7 +445,6 @@ def main(argv: list[str] | None = None) -> int:
     from policy_composer.data.interrupt import flag_interrupts
     from policy_composer.data.recipes import RecipeError
     from policy_composer.learning.checkpoint import CheckpointError
-    from policy_composer.policies.registry import LibraryError
 
     args = build_parser().parse_args(argv)
     if args.func is not cmd_dataset_push:  # everything but an upload works offline

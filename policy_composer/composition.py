@@ -52,6 +52,7 @@ def compose_library(models: str | Path, sources, config: ComposeConfig, seeds: l
     from policy_composer.policies.library import build_library, cameras_needed
     from policy_composer.tasks.rollout import make_env
 
+    check_out(Path(out), resume)  # before any work: a finished run in `out` is never overwritten
     torch.set_num_threads(1)
     world = GearWorldModel.load(models)
     names = list(world.dynamics)
@@ -70,6 +71,7 @@ def run_composition(env, library: dict, world: GearWorldModel, config: ComposeCo
     With `resume`, the episodes already in episodes.jsonl are kept and their seeds not run again."""
     from tqdm import tqdm
 
+    check_out(out, resume)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "episodes.jsonl"
     done = {e.seed: e for e in load_episodes(out)} if resume else {}
@@ -89,6 +91,13 @@ def run_composition(env, library: dict, world: GearWorldModel, config: ComposeCo
     episodes.sort(key=lambda e: seeds.index(e.seed))
     (out / "summary.md").write_text(summary(episodes, config))
     return episodes
+
+
+def check_out(out: Path, resume: bool) -> None:
+    """Refuse to start a new run over the episodes of an earlier one (it would truncate them)."""
+    if not resume and load_episodes(out):
+        raise FileExistsError(f"{out} holds a composed run ({len(load_episodes(out))} episodes); continue it with "
+                              f"--resume, or give another --out")
 
 
 def load_episodes(out: Path) -> list[ComposedEpisode]:

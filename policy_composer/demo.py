@@ -173,12 +173,13 @@ def _sources(inputs: dict[str, Path]):
 
 
 def _fit_dmp(out: Path, episodes: int) -> dict:
+    from policy_composer.policies.configuration_dmp import FIT_FIRST_SEED
     from policy_composer.policies.dmp import fit_dmp_library
     from policy_composer.tasks.rollout import make_env
 
     env = make_env("state_dict")
     try:
-        fit_dmp_library(env, seeds=list(range(100, 100 + episodes))).save(out / "dmp")
+        fit_dmp_library(env, seeds=list(range(FIT_FIRST_SEED, FIT_FIRST_SEED + episodes))).save(out / "dmp")
     finally:
         env.close()
     return {"episodes": episodes}

@@ -18,12 +18,12 @@ class VAEConfig:
     """The latent state s_t: a variational autoencoder of one camera's images (the paper uses the head camera)."""
 
     camera: str = option("head", "the camera whose images make the latent state", CAMERA_NAMES)
-    image_size: int = option(64, "images are resized to this square")
-    latent_dim: int = option(32, "size of the latent state")
+    image_size: int = option(64, "images are resized to this square", minimum=16)
+    latent_dim: int = option(32, "size of the latent state", minimum=1)
     beta: float = 1.0  # weight of the KL term against the per-image reconstruction error (summed over pixels)
     lr: float = 1e-3
     batch_size: int = 64
-    epochs: int = option(30, "VAE training epochs")
+    epochs: int = option(30, "VAE training epochs", minimum=1)
     seed: int = 0
 
     def __post_init__(self):
@@ -36,14 +36,17 @@ class DynamicsConfig:
 
     controller: str = ""
     latent_dim: int = 32  # the VAE's
-    frame_skip: int = option(5, "control steps per dynamics step (one selector look-ahead step)")
+    frame_skip: int = option(5, "control steps per dynamics step (one selector look-ahead step)", minimum=1)
     hidden_dim: int = 256
-    num_mixtures: int = option(5, "mixture components of each dynamics model")
+    num_mixtures: int = option(5, "mixture components of each dynamics model", minimum=1)
     decoder_weight: float = 1.0  # the shared decoder: the predicted latent must decode to the real next image
     lr: float = 1e-3
     batch_size: int = 64
-    epochs: int = option(60, "dynamics-model training epochs")
+    epochs: int = option(60, "dynamics-model training epochs", minimum=1)
     seed: int = 0
+
+    def __post_init__(self):
+        check_choices(self)
 
 
 @dataclass
@@ -51,15 +54,15 @@ class GoalScoreConfig:
     """G: a CNN with a mixture density head over task progress, trained on full-task demonstrations."""
 
     camera: str = option("head", "the camera the goal score sees", CAMERA_NAMES)
-    image_size: int = option(64, "images are resized to this square")
+    image_size: int = option(64, "images are resized to this square", minimum=16)
     backbone: str = option("small", "image encoder", BACKBONES)
     hidden_dim: int = 256
-    num_mixtures: int = option(24, "Gaussian mixture components (paper: 24)")
+    num_mixtures: int = option(24, "Gaussian mixture components (paper: 24)", minimum=1)
     shift: int = 4  # random-shift augmentation (pixels)
     lr: float = 1e-3
     weight_decay: float = 1e-6
     batch_size: int = 120
-    epochs: int = option(60, "goal-score training epochs")
+    epochs: int = option(60, "goal-score training epochs", minimum=1)
     seed: int = 0
 
     def __post_init__(self):
@@ -68,9 +71,13 @@ class GoalScoreConfig:
 
 @dataclass
 class ComposeConfig:
-    horizon: int = option(10, "n: dynamics steps looked ahead (paper: 10)")
-    samples: int = option(16, "K: sampled rollouts per controller")
+    horizon: int = option(10, "n: dynamics steps looked ahead (paper: 10)", minimum=1)
+    samples: int = option(16, "K: sampled rollouts per controller", minimum=1)
     reselect_every: int | None = option(None, "also decide every this many control steps (default: only when the "
-                                        "running controller terminates)")
+                                        "running controller terminates)", minimum=1)
     max_steps: int = 900  # control steps per episode
-    max_failures: int = option(1, "a controller that failed this often since the last success is not chosen again")
+    max_failures: int = option(1, "a controller that failed this often since the last success is not chosen again",
+                               minimum=1)
+
+    def __post_init__(self):
+        check_choices(self)

@@ -14,6 +14,8 @@ import numpy as np
 import sapien
 from transforms3d.euler import euler2quat
 
+from policy_composer.tasks.spec import CLEARANCE_MM
+
 BRASS = [0.80, 0.62, 0.22, 1.0]
 COPPER = [0.85, 0.40, 0.15, 1.0]
 STEEL = [0.70, 0.72, 0.75, 1.0]
@@ -38,8 +40,9 @@ class GearSpec:
     peg_offset: float = 0.11  # peg axis distance from where the hand grips the plate
 
     def __post_init__(self) -> None:
-        if not 0.0005 <= self.clearance <= 0.006:
-            raise ValueError(f"clearance={self.clearance} m: choose a radial clearance between 0.0005 and 0.006 m")
+        low, high = (mm / 1000 for mm in CLEARANCE_MM)
+        if not low <= self.clearance <= high:
+            raise ValueError(f"clearance={self.clearance} m: choose a radial clearance between {low} and {high} m")
 
     @property
     def hole_radius(self) -> float:

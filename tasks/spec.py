@@ -20,6 +20,12 @@ ACTION_NAMES = tuple(
 )
 
 
+# What the task can be made with: the radial clearance the gear's hole leaves around the peg (below 0.5 mm the
+# gear jams, above 6 mm it tips over the peg), and square camera images.
+CLEARANCE_MM = (0.5, 6.0)
+RESOLUTION = (16, 512)
+
+
 @dataclass(frozen=True)
 class EnvSettings:
     """What a recorded dataset's env was made with (kept in the dataset, so a resumed recording matches)."""

@@ -24,24 +24,24 @@ ACTION_SPACES = {"hand": 4, "joint": 8}
 @dataclass
 class CNNPolicyConfig:
     camera: str = option("left_forearm", "the camera the policy sees", CAMERA_NAMES)
-    image_size: int = option(64, "images are resized to this square before the encoder")
+    image_size: int = option(64, "images are resized to this square before the encoder", minimum=16)
     backbone: str = option("spatial", "image encoder (see learning.layers.image_encoder)", BACKBONES)
     proprioception: str = option("gripper", "what the policy reads besides its image: the gripper width, or the "
                                  "arm's joints too", tuple(PROPRIOCEPTION))
     action_space: str = option("hand", "hand: next TCP displacement in the hand frame (IK to joint targets); "
                                "joint: joint-target deltas", tuple(ACTION_SPACES))
     hidden_dim: int = 256
-    num_mixtures: int = option(24, "Gaussian mixture components (paper: 24)")
+    num_mixtures: int = option(24, "Gaussian mixture components (paper: 24)", minimum=1)
     # Smallest standard deviation of a component, in units of the target's spread. Without a floor the
     # likelihood is won by shrinking variances, and the means (the actions) are left barely fitted: on two
     # demonstrations, a floor of 0.2 cut the fitted descent error from 2.4 mm to 0.5 mm a step.
     min_std: float = 0.2
     lr: float = 1e-3
     weight_decay: float = 1e-6  # paper
-    batch_size: int = option(120, "minibatch size (paper: 120)")
-    epochs: int = option(200, "training epochs (paper: 200)")
+    batch_size: int = option(120, "minibatch size (paper: 120)", minimum=1)
+    epochs: int = option(200, "training epochs (paper: 200)", minimum=1)
     # Behaviour cloning's usual guard against memorising a few demonstrations.
-    shift: int = option(4, "random-shift augmentation in pixels at image_size (0: none)")
+    shift: int = option(4, "random-shift augmentation in pixels at image_size (0: none)", minimum=0)
     seed: int = option(0, "seed of the initialisation and the minibatches")
 
     def __post_init__(self):

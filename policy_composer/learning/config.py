@@ -10,18 +10,20 @@ from typing import Any
 BACKBONES = ("spatial", "small", "resnet18")
 
 
-def option(default: Any, help: str = "", choices: tuple | None = None) -> Any:
-    """A config field with a help text and, optionally, the values it may take."""
-    return field(default=default, metadata={"help": help, "choices": choices})
+def option(default: Any, help: str = "", choices: tuple | None = None, minimum: float | None = None) -> Any:
+    """A config field with a help text and, optionally, the values it may take or its smallest value."""
+    return field(default=default, metadata={"help": help, "choices": choices, "minimum": minimum})
 
 
 def check_choices(config: Any) -> None:
-    """Refuse a field outside its declared choices, naming the field and the choices."""
+    """Refuse a field outside its declared choices or below its minimum, naming the field and what it may be."""
     for f in fields(config):
-        choices = f.metadata.get("choices")
-        if choices is not None and getattr(config, f.name) not in choices:
+        value, choices, minimum = getattr(config, f.name), f.metadata.get("choices"), f.metadata.get("minimum")
+        if choices is not None and value not in choices:
             raise ValueError(f"{type(config).__name__}.{f.name} must be one of {', '.join(map(str, choices))}, "
-                             f"not {getattr(config, f.name)!r}")
+                             f"not {value!r}")
+        if minimum is not None and value is not None and value < minimum:
+            raise ValueError(f"{type(config).__name__}.{f.name} must be at least {minimum}, not {value!r}")
 
 
 def default_of(config_cls: type, name: str) -> Any:
