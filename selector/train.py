@@ -15,6 +15,7 @@ import torch
 
 from policy_composer.data.features import DatasetError, image_key, read_sidecar
 from policy_composer.data.frames import load_frames
+from policy_composer.data.recipes import check_recipe
 from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
 from policy_composer.selector.dynamics import train_dynamics
 from policy_composer.selector.goal_score import train_goal_score
@@ -43,6 +44,8 @@ def train_world_model(rollouts: str | Path, demos: str | Path, out: str | Path, 
     vae_config = vae_config or VAEConfig()
     dynamics_config = dynamics_config or DynamicsConfig()
     camera, size = vae_config.camera, vae_config.image_size
+    check_recipe(rollouts, "gear-controller-rollouts", "the dynamics models")
+    check_recipe(demos, "gear-full-task-demos", "the VAE")
     ro = load_frames(rollouts, (camera,), size, required={"controller": (1,)}, progress=progress)
     timings = {}
     if reuse_vae:
@@ -74,6 +77,7 @@ def train_goal_scores(demos: str | Path, out: str | Path, cameras: tuple[str, ..
     `out/vae`, if there is one, adds its reconstructions to its own camera's training images."""
     out = Path(out)
     config = config or GoalScoreConfig()
+    check_recipe(demos, "gear-full-task-demos", "the goal score")
     frames = load_frames(demos, cameras, config.image_size, demo_split(demos, "train"),
                          required={"progress": (1,)}, progress=progress)
     vae = load_vae(out / "vae") if (out / "vae" / "config.json").is_file() else None

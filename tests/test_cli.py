@@ -70,3 +70,20 @@ def test_compose_does_not_overwrite_a_finished_run(tmp_path):
     result = run_cli("compose", "--episodes", "1", "--out", str(out), "--models", str(tmp_path / "no-models"))
     assert result.returncode == 2 and "holds a composed run (1 episodes); continue it with --resume" in result.stderr
     assert tree(out) == before
+
+
+@pytest.mark.parametrize("command, wrong, message", [
+    (("train", "policy", "--dataset"), "full_task_demos",
+     "holds gear-full-task-demos episodes, but training the CNN policy needs gear-insertion-demos"),
+    (("train", "world-model", "--rollouts"), "insertion_demos",
+     "holds gear-insertion-demos episodes, but training the dynamics models needs gear-controller-rollouts"),
+    (("train", "goal-score", "--demos"), "insertion_demos",
+     "holds gear-insertion-demos episodes, but training the goal score needs gear-full-task-demos"),
+])
+def test_training_on_the_wrong_recipe_is_refused(request, tmp_path, command, wrong, message):
+    """A dataset's own metadata names its recipe: a model is not trained on another kind of episode."""
+    dataset = request.getfixturevalue(wrong)
+    before = tree(dataset)
+    result = run_cli(*command, str(dataset), "--out", str(tmp_path / "model"), cwd=tmp_path)
+    assert result.returncode == 2 and message in result.stderr, result.stderr[-2000:]
+    assert not (tmp_path / "model").exists() and tree(dataset) == before

@@ -15,6 +15,7 @@ import torch
 
 from policy_composer.data.features import image_key
 from policy_composer.data.frames import load_frames, random_shift
+from policy_composer.data.recipes import check_recipe
 from policy_composer.learning.checkpoint import CheckpointError, load_checkpoint, load_config, save_checkpoint
 from policy_composer.learning.training import fit_epochs
 from policy_composer.policies.cnn.configuration_cnn import PROPRIOCEPTION, CNNPolicyConfig
@@ -57,6 +58,7 @@ def load_demonstrations(root: str | Path, config: CNNPolicyConfig, episodes: lis
                         progress: bool = True) -> dict[str, torch.Tensor]:
     """A dataset in memory as the policy trains on it: images (N, 3, S, S) uint8, arm state (N, 8) and action
     target (N, action_dim)."""
+    check_recipe(root, "gear-insertion-demos", "the CNN policy")
     frames = load_frames(root, (config.camera,), config.image_size, episodes,
                          required={"observation.state": (16,), "action": (16,)}, progress=progress)
     state, action = frames["observation.state"], frames["action"]
