@@ -7,6 +7,7 @@ import hashlib
 import importlib.metadata
 import json
 import os
+import shutil
 import subprocess
 import sys
 from dataclasses import replace
@@ -124,6 +125,19 @@ def test_dataset_info_and_push_without_network(insertion_demos, monkeypatch):
     monkeypatch.setattr("huggingface_hub.constants.HF_HUB_OFFLINE", True)
     with pytest.raises(HubUnreachable, match="HF_HUB_OFFLINE"):
         push_dataset(insertion_demos, "me/gears")
+
+
+def test_dataset_info_refuses_a_dataset_with_a_video_missing(insertion_demos, tmp_path):
+    """A dataset whose episodes point to a video file that is gone is not reported as whole: exit 2, the file named."""
+    broken = tmp_path / "broken"
+    shutil.copytree(insertion_demos, broken)
+    video = sorted((broken / "videos" / "observation.images.head").rglob("*.mp4"))[0]
+    video.unlink()
+    res = subprocess.run([str(BIN / "policy-composer"), "dataset", "info", str(broken)], capture_output=True,
+                         text=True, timeout=120)
+    assert res.returncode == 2, res.stdout + res.stderr
+    assert f"missing 1 video file(s) its episodes point to ({video.relative_to(broken)})" in res.stderr
+    assert "Traceback" not in res.stderr
 
 
 def test_bad_input_is_named(insertion_demos, tmp_path):
