@@ -95,8 +95,9 @@ def run_composition(env, library: dict, world: GearWorldModel, config: ComposeCo
 
 def check_out(out: Path, resume: bool) -> None:
     """Refuse to start a new run over the episodes of an earlier one (it would truncate them)."""
-    if not resume and load_episodes(out):
-        raise FileExistsError(f"{out} holds a composed run ({len(load_episodes(out))} episodes); continue it with "
+    earlier = [] if resume else load_episodes(out)
+    if earlier:
+        raise FileExistsError(f"{out} holds a composed run ({len(earlier)} episodes); continue it with "
                               f"--resume, or give another --out")
 
 

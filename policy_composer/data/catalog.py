@@ -35,9 +35,10 @@ def missing_videos(root: Path, info: dict) -> list[str]:
     import pyarrow.parquet as pq
 
     keys = [k for k, v in info["features"].items() if v["dtype"] == "video"]
+    columns = [f"videos/{key}/{index}" for key in keys for index in ("chunk_index", "file_index")]
     wanted = set()
     for path in sorted((root / "meta" / "episodes").rglob("*.parquet")):
-        table = pq.read_table(path).to_pydict()
+        table = pq.read_table(path, columns=columns).to_pydict()
         for key in keys:
             for chunk, file in zip(table[f"videos/{key}/chunk_index"], table[f"videos/{key}/file_index"]):
                 wanted.add(info["video_path"].format(video_key=key, chunk_index=chunk, file_index=file))
