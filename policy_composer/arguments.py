@@ -4,10 +4,7 @@ so the command line never repeats a model's defaults (LeRobot's commands parse t
 from __future__ import annotations
 
 import argparse
-from dataclasses import fields
-from typing import Any
-
-from policy_composer.learning.config import default_of
+from dataclasses import MISSING, fields
 
 _TYPES = {"int": int, "float": float, "str": str}
 
@@ -47,7 +44,7 @@ def add_config_options(parser: argparse.ArgumentParser, config_cls: type, flags:
     by_name = {f.name: f for f in fields(config_cls)}
     for name, flag in flags.items():
         f = by_name[name]
-        default = default_of(config_cls, name)
+        default = f.default_factory() if f.default is MISSING else f.default
         help_text = f.metadata.get("help") or name.replace("_", " ")
         kind, minimum = _TYPES[str(f.type).split(" |")[0]], f.metadata.get("minimum")
         parser.add_argument(f"--{flag}", dest=f"{config_cls.__name__}.{name}", default=default,
@@ -55,8 +52,7 @@ def add_config_options(parser: argparse.ArgumentParser, config_cls: type, flags:
                             choices=f.metadata.get("choices"), help=f"{help_text} (default: {default})")
 
 
-def config_from(args: argparse.Namespace, config_cls: type, **values: Any):
-    """`config_cls` filled with the flags `add_config_options` added for it, and `values`."""
+def config_from(args: argparse.Namespace, config_cls: type):
+    """`config_cls` filled with the flags `add_config_options` added for it."""
     prefix = f"{config_cls.__name__}."
-    flags = {k.removeprefix(prefix): v for k, v in vars(args).items() if k.startswith(prefix)}
-    return config_cls(**{**flags, **values})
+    return config_cls(**{k.removeprefix(prefix): v for k, v in vars(args).items() if k.startswith(prefix)})

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from policy_composer.learning.config import BACKBONES, check_choices, option
+from policy_composer.learning.config import BACKBONES, check_options, option
 from policy_composer.tasks.spec import CAMERA_NAMES
 
 
@@ -27,7 +27,7 @@ class VAEConfig:
     seed: int = 0
 
     def __post_init__(self):
-        check_choices(self)
+        check_options(self)
 
 
 @dataclass
@@ -46,7 +46,7 @@ class DynamicsConfig:
     seed: int = 0
 
     def __post_init__(self):
-        check_choices(self)
+        check_options(self)
 
 
 @dataclass
@@ -66,7 +66,7 @@ class GoalScoreConfig:
     seed: int = 0
 
     def __post_init__(self):
-        check_choices(self)
+        check_options(self)
 
 
 @dataclass
@@ -80,4 +80,4 @@ class ComposeConfig:
                                minimum=1)
 
     def __post_init__(self):
-        check_choices(self)
+        check_options(self)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from policy_composer.learning.config import BACKBONES, check_choices, option
+from policy_composer.learning.config import BACKBONES, check_options, option
 from policy_composer.tasks.spec import CAMERA_NAMES
 
 # What the policy reads of observation.state besides its image, and its size:
@@ -45,7 +45,7 @@ class CNNPolicyConfig:
     seed: int = option(0, "seed of the initialisation and the minibatches")
 
     def __post_init__(self):
-        check_choices(self)
+        check_options(self)
 
     @property
     def state_dim(self) -> int:

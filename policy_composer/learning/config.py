@@ -3,7 +3,7 @@ and choices from the config classes (as LeRobot's commands parse theirs) instead
 
 from __future__ import annotations
 
-from dataclasses import MISSING, field, fields
+from dataclasses import field, fields
 from typing import Any
 
 # The image encoders `learning.layers.image_encoder` builds.
@@ -15,7 +15,7 @@ def option(default: Any, help: str = "", choices: tuple | None = None, minimum: 
     return field(default=default, metadata={"help": help, "choices": choices, "minimum": minimum})
 
 
-def check_choices(config: Any) -> None:
+def check_options(config: Any) -> None:
     """Refuse a field outside its declared choices or below its minimum, naming the field and what it may be."""
     for f in fields(config):
         value, choices, minimum = getattr(config, f.name), f.metadata.get("choices"), f.metadata.get("minimum")
@@ -25,8 +25,3 @@ def check_choices(config: Any) -> None:
         if minimum is not None and value is not None and value < minimum:
             raise ValueError(f"{type(config).__name__}.{f.name} must be at least {minimum}, not {value!r}")
 
-
-def default_of(config_cls: type, name: str) -> Any:
-    """The default of one field of a config class."""
-    f = next(f for f in fields(config_cls) if f.name == name)
-    return f.default_factory() if f.default is MISSING else f.default
