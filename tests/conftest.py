@@ -1,4 +1,6 @@
+import hashlib
 import os
+from pathlib import Path
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
@@ -76,3 +78,9 @@ def act_checkpoint(insertion_demos, tmp_path_factory):
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=600,
                          env={**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"})
     return out / "checkpoints" / "last" / "pretrained_model", res
+
+
+def tree_digest(root: Path) -> dict[str, str]:
+    """Every file under `root` by its SHA-256: equal before and after means nothing was touched."""
+    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(root.rglob("*"))
+            if p.is_file()}

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import imageio.v3 as iio
 import pytest
+from conftest import tree_digest
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -29,10 +30,6 @@ def run_cli(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:
     exe = Path(sys.executable).parent / "policy-composer"
     return subprocess.run([str(exe), *args], cwd=cwd, capture_output=True, text=True, timeout=120,
                           env={**os.environ, "HF_HUB_OFFLINE": "1"})
-
-
-def tree(root: Path) -> dict[str, bytes]:
-    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
 
 
 @pytest.mark.parametrize("args, message", [
@@ -66,10 +63,10 @@ def test_compose_does_not_overwrite_a_finished_run(tmp_path):
     (out / "episodes.jsonl").write_text(json.dumps(
         {"seed": 0, "success": True, "steps": 10, "knocked_out": False, "activations": [], "decisions": []}) + "\n")
     (out / "summary.md").write_text("composed: 1/1\n")
-    before = tree(out)
+    before = tree_digest(out)
     result = run_cli("compose", "--episodes", "1", "--out", str(out), "--models", str(tmp_path / "no-models"))
     assert result.returncode == 2 and "holds a composed run (1 episodes); continue it with --resume" in result.stderr
-    assert tree(out) == before
+    assert tree_digest(out) == before
 
 
 @pytest.mark.parametrize("command, wrong, message", [
@@ -83,7 +80,7 @@ def test_compose_does_not_overwrite_a_finished_run(tmp_path):
 def test_training_on_the_wrong_recipe_is_refused(request, tmp_path, command, wrong, message):
     """A dataset's own metadata names its recipe: a model is not trained on another kind of episode."""
     dataset = request.getfixturevalue(wrong)
-    before = tree(dataset)
+    before = tree_digest(dataset)
     result = run_cli(*command, str(dataset), "--out", str(tmp_path / "model"), cwd=tmp_path)
     assert result.returncode == 2 and message in result.stderr, result.stderr[-2000:]
-    assert not (tmp_path / "model").exists() and tree(dataset) == before
+    assert not (tmp_path / "model").exists() and tree_digest(dataset) == before

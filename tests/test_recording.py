@@ -3,7 +3,6 @@ LeRobot's trainer."""
 
 from __future__ import annotations
 
-import hashlib
 import importlib.metadata
 import json
 import os
@@ -17,6 +16,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from conftest import tree_digest
 
 import policy_composer.tasks.gear_assembly  # noqa: F401  (registers GearAssembly-v1)
 from policy_composer.data import journal
@@ -32,11 +32,6 @@ from policy_composer.tasks.spec import ACTION_NAMES, CAMERA_NAMES, STATE_NAMES, 
 
 RES = 64
 BIN = Path(sys.executable).parent
-
-
-def _tree_digest(root: Path) -> dict[str, str]:
-    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(root.rglob("*"))
-            if p.is_file()}
 
 
 def test_reloaded_dataset_equals_what_was_written(tmp_path):
@@ -104,13 +99,13 @@ def test_dataset_info_and_push_without_network(insertion_demos, monkeypatch):
                          capture_output=True, text=True, check=True).stdout
     assert ("episodes:    2" in out and "task done:   100% of episodes" in out and "head 64x64x3" in out
             and "fps: 20" in out)
-    before = _tree_digest(insertion_demos)
+    before = tree_digest(insertion_demos)
     env = {**os.environ, "HF_HUB_OFFLINE": "1"}
     res = subprocess.run([str(BIN / "policy-composer"), "dataset", "push", str(insertion_demos),
                           "--repo-id", "me/gears"],
                          capture_output=True, text=True, env=env, timeout=120)
     assert res.returncode == 2 and "unreachable" in res.stderr and "intact" in res.stderr
-    assert _tree_digest(insertion_demos) == before
+    assert tree_digest(insertion_demos) == before
     with pytest.raises(ValueError, match="USER/NAME"):
         push_dataset(insertion_demos, "no-slash")
     # Reachable hub: the command hands the local dataset to LeRobotDataset.push_to_hub under the new repo id.
@@ -241,7 +236,7 @@ def test_journal_rolls_back_an_unfinished_save(insertion_demos, tmp_path):
 
     root = tmp_path / "copy"
     shutil.copytree(insertion_demos, root)
-    before = _tree_digest(root)
+    before = tree_digest(root)
     journal.begin(root)
     # What a save killed half-way leaves: new files, rewritten metadata.
     (root / "data" / "chunk-000" / "file-009.parquet").write_bytes(b"PAR1 truncated")
@@ -252,7 +247,7 @@ def test_journal_rolls_back_an_unfinished_save(insertion_demos, tmp_path):
     info["total_episodes"] += 1
     (root / "meta" / "info.json").write_text(json.dumps(info))
     assert journal.recover(root)
-    assert _tree_digest(root) == before and not journal.journal_dir(root).exists()
+    assert tree_digest(root) == before and not journal.journal_dir(root).exists()
     assert open_dataset(root).num_episodes == 2
 
 
