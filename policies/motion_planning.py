@@ -30,10 +30,9 @@ class MotionPlanningController(SubtaskController):
     kind = "mp"
     action_kind = "joint_waypoints"
 
-    def __init__(self, env, subtask, planning_timeout: float = 2.0, **kwargs):
+    def __init__(self, env, subtask, **kwargs):
         super().__init__(env, subtask, **kwargs)
         self.collision = SceneCollisionModel()
-        self.planning_timeout = planning_timeout
 
     def connect(self, obs, waypoints: list[Waypoint], seed):
         finger = float(np0(obs["extra"]["state"])[7] / 2)
@@ -44,7 +43,7 @@ class MotionPlanningController(SubtaskController):
         q, segments = self.q9(obs), []
         for wp in waypoints:
             if wp.kind == "free":
-                path = plan_rrt_connect(self.collision, q[:7], wp.q[:7], timeout=self.planning_timeout, seed=seed)
+                path = plan_rrt_connect(self.collision, q[:7], wp.q[:7])
                 traj = time_parameterize(path, 1.0 / self.rate_hz)
             elif wp.kind == "line":
                 traj, _ = self.cartesian_line(q, wp)

@@ -5,6 +5,9 @@ its SRDF) plus the scene as the planner sees it at planning time: the table, the
 configuration (its link meshes placed by forward kinematics), the peg module it holds, and, while carrying,
 the gear attached to the hand. A check takes tens of microseconds, so RRT-Connect with path simplification
 plans in well under a second. Paths are then time-parameterised to the Panda's joint velocity limits.
+
+A plan is a function of its problem alone: OMPL's random streams restart from one seed for every plan, and the
+planner's budget is a number of collision checks, not seconds, so neither earlier plans nor a busy CPU change it.
 """
 
 from __future__ import annotations
@@ -25,7 +28,8 @@ VELOCITY_LIMIT = np.array([2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61])
 TABLE_HALF = (1.2, 1.2, 0.05)  # a slab whose top is the table surface (z = 0)
 
 
-_OMPL_SEEDED = False
+PLAN_CHECKS = 20_000  # collision checks one plan may spend (about 4 s here): a work budget, not a time budget
+OMPL_SEED = 1  # OMPL rejects 0
 
 
 class PlanningError(RuntimeError):
@@ -126,23 +130,29 @@ class SceneCollisionModel:
                 if self.gdata.collisionResults[k].isCollision()]
 
 
+def _restart_ompl_random_streams() -> None:
+    """Reseed OMPL's seed generator, so the random streams of the next plan's sampler and simplifier are those of
+    every plan. (After the first draw OMPL restarts from its first seed and logs an error; silence it.)"""
+    from ompl import util as ou
+
+    ou.setLogLevel(ou.LogLevel.LOG_NONE)
+    ou.RNG.setSeed(OMPL_SEED)
+    ou.setLogLevel(ou.LogLevel.LOG_ERROR)
+
+
 def plan_rrt_connect(collision: SceneCollisionModel, q_start: np.ndarray, q_goal: np.ndarray,
-                     timeout: float = 2.0, seed: int | None = None) -> np.ndarray:
-    """A simplified collision-free joint path (K, 7) from q_start to q_goal, by OMPL's RRT-Connect."""
+                     max_checks: int = PLAN_CHECKS) -> np.ndarray:
+    """A simplified collision-free joint path (K, 7) from q_start to q_goal, by OMPL's RRT-Connect, or a
+    PlanningError if none is found within `max_checks` collision checks."""
     from ompl import base as ob
     from ompl import geometric as og
-    from ompl import util as ou
 
     for label, q in (("start", q_start), ("goal", q_goal)):
         if np.any(q < JOINT_LOW - 1e-6) or np.any(q > JOINT_HIGH + 1e-6):
             raise PlanningError(f"the {label} configuration {np.round(q, 3)} is outside the Panda's joint limits")
         if collision.in_collision(q):
             raise PlanningError(f"the {label} configuration is in collision: {collision.colliding_pairs(q)[:4]}")
-    global _OMPL_SEEDED
-    ou.setLogLevel(ou.LogLevel.LOG_ERROR)
-    if not _OMPL_SEEDED:  # OMPL takes a seed once per process, before its first sample
-        ou.RNG.setSeed(int(seed or 0) + 1)  # and rejects 0
-        _OMPL_SEEDED = True
+    _restart_ompl_random_streams()
     space = ob.RealVectorStateSpace(7)
     bounds = ob.RealVectorBounds(7)
     for i in range(7):
@@ -157,10 +167,12 @@ def plan_rrt_connect(collision: SceneCollisionModel, q_start: np.ndarray, q_goal
         start[i], goal[i] = float(q_start[i]), float(q_goal[i])
     ss.setStartAndGoalStates(start, goal)
     ss.setPlanner(og.RRTConnect(ss.getSpaceInformation()))
-    if not ss.solve(timeout) or not ss.haveExactSolutionPath():
-        raise PlanningError(f"RRT-Connect found no path in {timeout} s")
-    ss.simplifySolution(min(1.0, timeout))
+    budget = collision.checks + max_checks
+    if not ss.solve(ob.PlannerTerminationCondition(lambda: collision.checks >= budget)) \
+            or not ss.haveExactSolutionPath():
+        raise PlanningError(f"RRT-Connect found no path within {max_checks} collision checks")
     path = ss.getSolutionPath()
+    ss.getPathSimplifier().simplifyMax(path)
     return np.array([[path.getState(k)[i] for i in range(7)] for k in range(path.getStateCount())])
 
 

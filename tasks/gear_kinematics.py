@@ -21,11 +21,15 @@ JOINT_HIGH = np.array([2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973])
 
 class LeftArmIK:
     def __init__(self, env):
-        env = env.unwrapped if hasattr(env, "unwrapped") else env
-        self.arm = env.left_arm
+        self.env = env.unwrapped if hasattr(env, "unwrapped") else env
         robot = self.arm.robot._objs[0]
         self._model = robot.create_pinocchio_model()
         self._tcp_index = [link.name.endswith("panda_hand_tcp") for link in robot.get_links()].index(True)
+
+    @property
+    def arm(self):
+        """The env's left arm now: a reset rebuilds the scene, and with it the arm's objects."""
+        return self.env.left_arm
 
     def base(self) -> sapien.Pose:
         pose = self.arm.robot.pose

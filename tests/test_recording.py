@@ -253,7 +253,7 @@ def test_journal_rolls_back_an_unfinished_save(insertion_demos, tmp_path):
 
 def _record_cmd(root: Path, episodes: int, *extra: str) -> list[str]:
     return [str(BIN / "policy-composer"), "record", "gear-insertion-demos", "--episodes", str(episodes),
-            "--root", str(root), "--resolution", "48", *extra]
+            "--root", str(root), "--resolution", str(RES), *extra]
 
 
 def _wait_for_episodes(proc: subprocess.Popen, root: Path, n: int, timeout: float = 300) -> None:
@@ -274,7 +274,9 @@ def _wait_for_episodes(proc: subprocess.Popen, root: Path, n: int, timeout: floa
 
 
 @pytest.mark.parametrize("sig", ["SIGKILL", "SIGINT"])
-def test_interrupted_recording_keeps_finished_episodes_and_resumes(tmp_path, sig):
+def test_interrupted_recording_keeps_finished_episodes_and_resumes(insertion_demos, tmp_path, sig):
+    """Killed or stopped after its first episode, a recording keeps that episode, and resumed, it records what an
+    uninterrupted recording of the same settings (the insertion_demos fixture) does, frame for frame."""
     import signal
 
     root = tmp_path / "demos"
@@ -298,7 +300,13 @@ def test_interrupted_recording_keeps_finished_episodes_and_resumes(tmp_path, sig
     seeds = [e["seed"] for e in sidecar["episodes"]]
     assert ds.num_episodes == 2 and len(set(seeds)) == 2 and seeds == sorted(seeds)
     assert sorted(set(int(e) for e in ds.hf_dataset["episode_index"])) == [0, 1]
-    assert ds[len(ds) - 1]["observation.images.head"].shape == (3, 48, 48)
+    assert ds[len(ds) - 1]["observation.images.head"].shape == (3, RES, RES)
+    uninterrupted = open_dataset(insertion_demos)
+    assert seeds == [e["seed"] for e in json.loads((insertion_demos / "meta" / "policy_composer.json").read_text())[
+        "episodes"]]
+    for column in ("observation.state", "action", "episode_index", "frame_index"):
+        assert torch.equal(torch.as_tensor(np.stack(ds.hf_dataset[column])),
+                           torch.as_tensor(np.stack(uninterrupted.hf_dataset[column]))), column
 
 
 def test_lerobot_trainer_runs_on_our_dataset(act_checkpoint):

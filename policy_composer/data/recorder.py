@@ -114,6 +114,7 @@ class LeRobotRecorder(gym.Wrapper):
         return obs, info
 
     def step(self, action):
+        interrupt.check()  # a Ctrl-C swallowed mid-episode (say, by a rebuilt scene's __del__) ends it here
         u = self.env.unwrapped
         flat = _flat(action, u)
         obs, reward, terminated, truncated, info = self.env.step(u.flat_to_dict_action(flat))
