@@ -53,7 +53,7 @@ HEAD_EYE, HEAD_TARGET = [0.35, -0.10, 0.70], [0.0, -0.10, 0.05]
 FOREARM_VIEWS = {"left": ([-0.08, 0.06, 0.08], [0.0, 0.0, 0.15]), "right": ([0.16, -0.15, 0.03], [0.10, 0.0, 0.07])}
 # Bump when a change alters what the task simulates or renders: the main job's recording stages key on it, so
 # recordings made before the change are not reused after it.
-TASK_REVISION = 2  # 2: the right forearm camera sees the peg
+TASK_REVISION = 3  # 2: the right forearm camera sees the peg; 3: the scene is rebuilt at every reset
 GEAR_XY_CENTER = (0.0, -0.30)
 GEAR_XY_RANGE = (0.10, 0.06)  # half-ranges of the gear's uniform position on the table
 PLATE_GRIP = 0.024  # right finger position holding the plate
