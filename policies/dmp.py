@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from policy_composer.data.atomic import replacing_folder
+from policy_composer.learning.checkpoint import CheckpointError
 from policy_composer.policies.arm import Outcome, Segment, run_activation
 from policy_composer.policies.configuration_dmp import DMPConfig
 from policy_composer.policies.planning import VELOCITY_LIMIT, time_parameterize
@@ -42,17 +44,16 @@ class DMPLibrary:
     def save(self, directory: str | Path) -> None:
         from safetensors.numpy import save_file
 
-        directory = Path(directory)
-        directory.mkdir(parents=True, exist_ok=True)
         tensors, layout = {}, {}
         for name, prims in self.primitives.items():
             layout[name] = [None if p is None else p.duration for p in prims]
             for i, p in enumerate(prims):
                 if p is not None:
                     tensors[f"{name}.{i}"] = p.weights.astype(np.float64)
-        save_file(tensors, str(directory / "dmp.safetensors"))
-        (directory / "dmp.json").write_text(json.dumps({"config": asdict(self.config), "durations": layout,
-                                                        "demonstrations": self.demonstrations}, indent=1))
+        with replacing_folder(directory) as tmp:  # a reader sees the old library or the new one, whole
+            save_file(tensors, str(tmp / "dmp.safetensors"))
+            (tmp / "dmp.json").write_text(json.dumps({"config": asdict(self.config), "durations": layout,
+                                                      "demonstrations": self.demonstrations}, indent=1))
 
     @classmethod
     def load(cls, directory: str | Path) -> DMPLibrary:
@@ -62,12 +63,17 @@ class DMPLibrary:
         if not (directory / "dmp.json").is_file() or not (directory / "dmp.safetensors").is_file():
             raise FileNotFoundError(f"no DMP library in {directory} (expected dmp.json and dmp.safetensors); "
                                     f"fit one with `policy-composer train dmp`")
-        meta = json.loads((directory / "dmp.json").read_text())
-        tensors = load_file(str(directory / "dmp.safetensors"))
-        lib = cls(DMPConfig(**meta["config"]), demonstrations=meta["demonstrations"])
-        for name, durations in meta["durations"].items():
-            lib.primitives[name] = [None if d is None else MovementPrimitive(tensors[f"{name}.{i}"], d)
-                                    for i, d in enumerate(durations)]
+        try:
+            meta = json.loads((directory / "dmp.json").read_text())
+            tensors = load_file(str(directory / "dmp.safetensors"))
+            lib = cls(DMPConfig(**meta["config"]), demonstrations=meta["demonstrations"])
+            for name, durations in meta["durations"].items():
+                lib.primitives[name] = [None if d is None else MovementPrimitive(tensors[f"{name}.{i}"], d)
+                                        for i, d in enumerate(durations)]
+        except Exception as e:  # unreadable JSON or safetensors, or files of another version
+            raise CheckpointError(f"the DMP library in {directory} does not read ({type(e).__name__}: "
+                                  f"{str(e).splitlines()[0][:200] if str(e) else ''}); fit it again with "
+                                  f"`policy-composer train dmp`") from None
         return lib
 
 

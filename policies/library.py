@@ -14,10 +14,11 @@ from policy_composer.policies.registry import LibraryError, get_kind, kind_of, k
 
 # Bumped when the controllers behave differently, so that stored runs of the old ones are not reused.
 # 2: an insertion that would let the gear go on top of the peg backs off with it to the pre-insertion pose.
-LIBRARY_REVISION = 2
+# 3: plans are bounded by collision checks, not seconds, and do not depend on earlier plans.
+LIBRARY_REVISION = 3
 
 __all__ = ["LIBRARY_REVISION", "LeRobotSource", "LibraryError", "LibrarySources", "all_names", "build_library",
-           "cameras_needed", "names_of_kind"]
+           "cameras_needed", "model_ids", "names_of_kind"]
 
 
 @dataclass(frozen=True)
@@ -80,6 +81,23 @@ def cameras_needed(names, sources: LibrarySources) -> tuple[str, ...]:
         if source.controller_name in names:
             cameras += lerobot_cameras(source.path)
     return tuple(dict.fromkeys(cameras))
+
+
+def model_ids(names, sources: LibrarySources) -> dict[str, str]:
+    """The trained model each named controller runs, by `weights_id` (controllers without one are left out):
+    recorded with its rollouts, so that a dynamics model is never paired with another model's controller."""
+    from pathlib import Path
+
+    from policy_composer.learning.checkpoint import weights_id
+
+    lerobot = {s.controller_name: s.path for s in sources.lerobot}
+    ids = {}
+    for name in names:
+        kind = kind_of(name)
+        path = lerobot.get(name) or (sources.model_path(kind.name) if kind is not None and kind.load else None)
+        if path is not None and Path(path).is_dir():  # a missing model: building the controller says so
+            ids[name] = weights_id(path)
+    return ids
 
 
 def build_library(env, names=None, sources: LibrarySources | None = None) -> dict[str, Controller]:

@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 from policy_composer.arguments import add_config_options, at_least, between, config_from
+from policy_composer.data import atomic
 from policy_composer.demo import PROFILES
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 from policy_composer.policies.configuration_dmp import FIT_EPISODES, FIT_FIRST_SEED
@@ -88,7 +89,8 @@ def cmd_expert(args: argparse.Namespace) -> int:
         with tqdm(total=episode_limit(env), desc=f"expert seed {seed}", unit="step", leave=False) as bar:
             result = run_episode(env, expert, seed, record_frames=True, on_step=lambda *_, bar=bar: bar.update())
         video = out / f"expert_seed{seed}.mp4"
-        imageio.mimsave(video, result.frames, fps=int(env.unwrapped.control_freq), macro_block_size=1)
+        with atomic.replacing(video) as tmp:
+            imageio.mimsave(tmp, result.frames, fps=int(env.unwrapped.control_freq), macro_block_size=1)
         successes += result.success
         print(f"seed {seed}: {'success' if result.success else 'FAILED'} in {result.steps} steps "
               f"(grasp offset {expert.grasp_offset * 1000:+.1f} mm, stage {result.stage}) -> {video}")
@@ -125,6 +127,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from policy_composer.data.catalog import format_summary, summarize
+    from policy_composer.data.features import read_sidecar
     from policy_composer.data.recipes import RecipeError, load_recipe
     from policy_composer.record import recipe_controllers, record_recipe
 
@@ -138,9 +141,12 @@ def cmd_record(args: argparse.Namespace) -> int:
                               f"({', '.join(known) or 'it runs none'}), not {', '.join(chosen)}")
         recipe = replace(recipe, controllers=chosen)
     root = Path(args.root) if args.root else Path("datasets") / recipe.name
+    given = {k: v for k, v in (("resolution", args.resolution), ("clearance_mm", args.clearance)) if v is not None}
+    previous = read_sidecar(root).get("env") if args.resume else None  # a flag not given keeps the dataset's value
+    settings = replace(EnvSettings(**previous), **given) if previous else EnvSettings(**given)
     try:
-        record_recipe(recipe, root, episodes=args.episodes, seed=args.seed, resume=args.resume,
-                      settings=EnvSettings(resolution=args.resolution, clearance_mm=args.clearance), sources=sources)
+        record_recipe(recipe, root, episodes=args.episodes, seed=args.seed, resume=args.resume, settings=settings,
+                      sources=sources)
     except KeyboardInterrupt:
         print(f"\ninterrupted: every finished episode is saved in {root}; continue with --resume", file=sys.stderr)
         return 130
@@ -407,6 +413,7 @@ def build_parser() -> argparse.ArgumentParser:
     record.add_argument("--root", default=None, help="dataset folder (default: datasets/RECIPE)")
     record.add_argument("--resume", action="store_true", help="continue an interrupted or shorter recording")
     env_options(record, grasp=False)
+    record.set_defaults(resolution=None, clearance=None, seed=None)  # not given: the defaults, or the resumed dataset's
     record.add_argument("--controllers", default=None,
                         help="comma-separated subset of the recipe's controllers to record "
                              "(recipes that run the controllers)")
@@ -441,6 +448,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from policy_composer.composition import RunError
     from policy_composer.data.features import DatasetError
     from policy_composer.data.interrupt import flag_interrupts
     from policy_composer.data.recipes import RecipeError
@@ -452,7 +460,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with flag_interrupts():  # a Ctrl-C swallowed by a library is raised again at the next episode or stage
             return args.func(args)
-    except (DatasetError, RecipeError, CheckpointError, LibraryError, FileExistsError, FileNotFoundError) as e:
+    except (DatasetError, RecipeError, CheckpointError, LibraryError, RunError, FileNotFoundError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
 

@@ -5,16 +5,22 @@ from __future__ import annotations
 
 import json
 from collections import Counter
+from dataclasses import asdict
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
-
-from policy_composer.data import interrupt
-from policy_composer.selector.compose import ComposedEpisode, compose_episode
+from policy_composer.data import atomic, interrupt
 from policy_composer.selector.configuration import ComposeConfig
-from policy_composer.selector.world_model import GearWorldModel
+
+if TYPE_CHECKING:  # the simulator and torch load when a run starts, not when the command line starts
+    from policy_composer.selector.compose import ComposedEpisode
+    from policy_composer.selector.world_model import GearWorldModel
 
 PAPER_COMPOSED = "10/10"  # paper Table I: MP + CNN composed by the selector, full task
+
+
+class RunError(ValueError):
+    """A composed run that the command would overwrite, or continue with other settings than its own."""
 
 
 class VideoWriter:
@@ -24,6 +30,7 @@ class VideoWriter:
         self.camera, self.scale, self.frames = camera, scale, []
 
     def __call__(self, obs, controller: str, score: float) -> None:
+        import numpy as np
         from PIL import Image, ImageDraw
 
         rgb = obs["sensor_data"][self.camera]["rgb"][0].cpu().numpy()
@@ -38,7 +45,8 @@ class VideoWriter:
     def save(self, path: Path, fps: int) -> Path:
         import imageio
 
-        imageio.mimsave(path, self.frames, fps=fps, macro_block_size=1)
+        with atomic.replacing(path) as tmp:
+            imageio.mimsave(tmp, self.frames, fps=fps, macro_block_size=1)
         return path
 
 
@@ -49,32 +57,47 @@ def compose_library(models: str | Path, sources, config: ComposeConfig, seeds: l
     (a `LibrarySources`), and compose on each seed in an env with the cameras they all need."""
     import torch
 
-    from policy_composer.policies.library import build_library, cameras_needed
+    from policy_composer.policies.library import build_library, cameras_needed, model_ids
+    from policy_composer.selector.world_model import GearWorldModel
     from policy_composer.tasks.rollout import make_env
 
     check_out(Path(out), resume)  # before any work: a finished run in `out` is never overwritten
     torch.set_num_threads(1)
     world = GearWorldModel.load(models)
     names = list(world.dynamics)
+    ids = model_ids(names, sources)
+    world.check_controllers(ids)
+    settings = {"models": str(Path(models).resolve()), "controller_models": ids, "config": asdict(config),
+                "resolution": resolution, "clearance_mm": clearance_mm, "knock_out_step": knock_out_step}
+    check_out(Path(out), resume, settings)
     cameras = tuple(dict.fromkeys((world.camera, *cameras_needed(names, sources))))
     env = make_env("rgb", resolution, clearance_mm, cameras, knock_out_step=knock_out_step)
     try:
         return run_composition(env, build_library(env, names, sources), world, config, seeds, out, videos, resume,
-                               progress)
+                               progress, settings)
     finally:
         env.close()
 
 
 def run_composition(env, library: dict, world: GearWorldModel, config: ComposeConfig, seeds: list[int], out: Path,
-                    videos: int = 1, resume: bool = False, progress: bool = True) -> list[ComposedEpisode]:
+                    videos: int = 1, resume: bool = False, progress: bool = True,
+                    settings: dict | None = None) -> list[ComposedEpisode]:
     """Compose on each seed; write episodes.jsonl (decision logs), summary.md and the first `videos` videos.
-    With `resume`, the episodes already in episodes.jsonl are kept and their seeds not run again."""
+    With `resume`, the episodes already in episodes.jsonl are kept and their seeds not run again. `settings`
+    (kept in run.json) are what a resumed run must share."""
     from tqdm import tqdm
 
-    check_out(out, resume)
+    from policy_composer.selector.compose import compose_episode
+
+    check_out(out, resume, settings)
     out.mkdir(parents=True, exist_ok=True)
+    if settings is not None and not (out / "run.json").is_file():
+        atomic.write_text(out / "run.json", json.dumps(settings, indent=1))
     path = out / "episodes.jsonl"
-    done = {e.seed: e for e in load_episodes(out)} if resume else {}
+    kept = load_episodes(out) if resume else []
+    if kept:  # rewritten whole, without an episode cut off mid-line
+        atomic.write_text(path, "".join(json.dumps(e.to_dict()) + "\n" for e in kept))
+    done = {e.seed: e for e in kept}
     episodes = [done[s] for s in seeds if s in done]
     with open(path, "a" if resume else "w") as log:
         for i, seed in enumerate(tqdm(seeds, desc="composed episodes", unit="episode", disable=not progress)):
@@ -89,24 +112,44 @@ def run_composition(env, library: dict, world: GearWorldModel, config: ComposeCo
                 video.save(out / f"composed_seed{seed}.mp4", int(env.unwrapped.control_freq))
             interrupt.check()
     episodes.sort(key=lambda e: seeds.index(e.seed))
-    (out / "summary.md").write_text(summary(episodes, config))
+    atomic.write_text(out / "summary.md", summary(episodes, config))
     return episodes
 
 
-def check_out(out: Path, resume: bool) -> None:
-    """Refuse to start a new run over the episodes of an earlier one (it would truncate them)."""
+def check_out(out: Path, resume: bool, settings: dict | None = None) -> None:
+    """Refuse to start a new run over the episodes of an earlier one (it would truncate them), and to continue
+    one with other settings than its own (its episodes would not be of one experiment)."""
     earlier = [] if resume else load_episodes(out)
     if earlier:
-        raise FileExistsError(f"{out} holds a composed run ({len(earlier)} episodes); continue it with "
-                              f"--resume, or give another --out")
+        raise RunError(f"{out} holds a composed run ({len(earlier)} episodes); continue it with --resume, or give "
+                       f"another --out")
+    stored = out / "run.json"
+    if resume and settings is not None and stored.is_file():
+        own = json.loads(stored.read_text())
+        clash = [key for key in settings if json.loads(json.dumps(settings[key])) != own.get(key)]
+        if clash:
+            raise RunError(f"--resume continues {out} with its own settings, but this run differs in "
+                           f"{', '.join(clash)} (see {stored}): give the same options, or another --out")
 
 
 def load_episodes(out: Path) -> list[ComposedEpisode]:
     """The episodes a composed run wrote to `out`/episodes.jsonl (none if it has not written any)."""
+    from policy_composer.selector.compose import ComposedEpisode
     path = out / "episodes.jsonl"
     if not path.exists():
         return []
-    return [ComposedEpisode.from_dict(json.loads(line)) for line in path.read_text().splitlines()]
+    text = path.read_text()
+    lines = text.splitlines()
+    episodes = []
+    for number, line in enumerate(lines, 1):
+        try:
+            episodes.append(ComposedEpisode.from_dict(json.loads(line)))
+        except (ValueError, KeyError, TypeError) as e:
+            if number == len(lines) and not text.endswith("\n"):
+                break  # the run was killed while writing its last episode: that seed runs again
+            raise RunError(f"{path}, line {number}, is not a composed episode ({e}); compose into another --out, "
+                           f"or remove the line to run that seed again") from None
+    return episodes
 
 
 def sequence_counts(episodes: list[ComposedEpisode]) -> list[tuple[str, int]]:

@@ -14,6 +14,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from policy_composer.data import atomic
 from policy_composer.policies.arm import Outcome, run_activation
 
 SUBTASK_COLUMNS = ("pick", "move", "insert", "full")
@@ -130,7 +131,7 @@ def evaluate_table(kinds: list[str], sources, trials: int, first_seed: int = 0, 
 
 def write_table(rows: dict[str, dict[str, Cell]], out: Path, notes: dict[str, str] | None = None) -> Path:
     out.mkdir(parents=True, exist_ok=True)
-    with open(out / "controllers.csv", "w", newline="") as f:
+    with atomic.replacing(out / "controllers.csv") as tmp, open(tmp, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["kind", "subtask", "successes", "trials", "safety_stops", "paper"])
         for kind, row in rows.items():
@@ -151,5 +152,5 @@ def write_table(rows: dict[str, dict[str, Cell]], out: Path, notes: dict[str, st
     for kind, note in (notes or {}).items():
         lines += ["", f"**{kind}**: {note}"]
     path = out / "controllers.md"
-    path.write_text("\n".join(lines) + "\n")
+    atomic.write_text(path, "\n".join(lines) + "\n")
     return path

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from policy_composer.data import atomic
 from policy_composer.policies.random_walk import RANDOM_WALK_OPTIONS, random_walk_controllers
 from policy_composer.selector.core import Selector
 from policy_composer.selector.tabular import TabularDynamics, TabularGoalScore, model_states
@@ -134,14 +135,14 @@ def experiment_19(out: Path, episodes: int = 1000, seed: int = 0) -> dict:
         "paper_planning_steps": PAPER["planning_steps_19"],
     }
     out.mkdir(parents=True, exist_ok=True)
-    (out / "mdp19_trace.json").write_text(json.dumps(result.trace, indent=1))
-    with open(out / "mdp19_episodes.csv", "w", newline="") as f:
+    atomic.write_text(out / "mdp19_trace.json", json.dumps(result.trace, indent=1))
+    with atomic.replacing(out / "mdp19_episodes.csv") as tmp, open(tmp, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["episode", "activations", "success"])
         w.writerows(zip(range(len(result.activations)), result.activations.tolist(),
                         result.success.astype(int).tolist()))
     plot_solution(result.trace, 19, out / "mdp19_solution.png")
-    (out / "mdp19_summary.json").write_text(json.dumps(summary, indent=1))
+    atomic.write_text(out / "mdp19_summary.json", json.dumps(summary, indent=1))
     return summary
 
 
@@ -170,7 +171,7 @@ def heatmap_100(out: Path, levels: tuple[float, ...] = LEVELS, episodes: int = 1
             bar.update()
     bar.close()
     out.mkdir(parents=True, exist_ok=True)
-    with open(out / f"mdp100_heatmap_{dyn_noise_unit}.csv", "w", newline="") as f:
+    with atomic.replacing(out / f"mdp100_heatmap_{dyn_noise_unit}.csv") as tmp, open(tmp, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
@@ -180,7 +181,7 @@ def heatmap_100(out: Path, levels: tuple[float, ...] = LEVELS, episodes: int = 1
                "mean_activations": mean.tolist(), "success_rate": rate.tolist(),
                "analytic_best_controller": expected_activations(100, 50, RANDOM_WALK_OPTIONS[0].beta),
                "claims": claims}
-    (out / f"mdp100_summary_{dyn_noise_unit}.json").write_text(json.dumps(summary, indent=1))
+    atomic.write_text(out / f"mdp100_summary_{dyn_noise_unit}.json", json.dumps(summary, indent=1))
     return summary
 
 
@@ -233,7 +234,8 @@ def plot_solution(trace: list[dict], num_states: int, path: Path) -> None:
                  "and the state reached", fontsize=9)
     ax.legend(fontsize=7, loc="lower left", ncol=3)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    with atomic.replacing(path) as tmp:
+        fig.savefig(tmp, dpi=120)
     plt.close(fig)
 
 
@@ -257,7 +259,8 @@ def plot_heatmap(mean: np.ndarray, levels: tuple[float, ...], path: Path, dyn_no
     fig.colorbar(im, ax=ax, label="mean controller activations to reach the goal")
     ax.set_title("100-state MDP: sensitivity to noise", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    with atomic.replacing(path) as tmp:
+        fig.savefig(tmp, dpi=120)
     plt.close(fig)
 
 
@@ -319,5 +322,5 @@ def write_report(out: Path, s19: dict, heatmaps: dict[str, dict]) -> Path:
                      f"lowest share of episodes reaching the goal: {100 * c['converges']['min_success_rate']:.0f}% at "
                      f"p_dyn, p_goal = {c['converges']['cell_of_min']}).") , ""]
     path = out / "mdp_report.md"
-    path.write_text("\n".join(lines) + "\n")
+    atomic.write_text(path, "\n".join(lines) + "\n")
     return path

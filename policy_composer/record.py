@@ -9,7 +9,7 @@ from pathlib import Path
 from policy_composer.data import interrupt, journal
 from policy_composer.data.features import read_sidecar
 from policy_composer.data.recipes import Recipe, RecipeError
-from policy_composer.policies.library import LibrarySources, all_names, build_library, cameras_needed
+from policy_composer.policies.library import LibrarySources, all_names, build_library, cameras_needed, model_ids
 from policy_composer.tasks.rollout import make_env
 from policy_composer.tasks.spec import EnvSettings
 
@@ -19,15 +19,16 @@ def recipe_controllers(recipe: Recipe) -> tuple[str, ...]:
     return (recipe.controllers or all_names()) if recipe.driver == "controllers" else ()
 
 
-def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None, seed: int = 0, resume: bool = False,
-                  settings: EnvSettings | None = None, progress: bool = True,
+def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None, seed: int | None = None,
+                  resume: bool = False, settings: EnvSettings | None = None, progress: bool = True,
                   sources: LibrarySources | None = None) -> dict:
     """Record until the dataset at `root` holds `episodes` episodes (per controller, for the "controllers"
     driver); returns its sidecar (seeds, success, ...).
 
-    With `resume`, an existing dataset is continued with its own env settings and the seed after the last
-    one it tried; an episode interrupted mid-way is simply recorded again. `sources` says where the library's
-    trained models are (the "controllers" driver).
+    With `resume`, an existing dataset is continued with its own env settings and models, from the seed after the
+    last one it tried; an episode interrupted mid-way is simply recorded again. A `seed`, `settings` or model
+    that contradicts the dataset's is refused. `sources` says where the library's trained models are (the
+    "controllers" driver).
     """
     import torch
     from tqdm import tqdm
@@ -36,23 +37,23 @@ def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None,
 
     torch.set_num_threads(1)  # the encoder threads need the second core
     root = Path(root)
+    sources = sources or LibrarySources()
     controllers = recipe_controllers(recipe)
+    models = model_ids(controllers, sources)
     per_unit = episodes if episodes is not None else recipe.episodes
     if resume:
         journal.recover(root)  # before reading the sidecar: an interrupted save may have written it already
     previous = read_sidecar(root) if resume else {}
     if previous:
-        if previous.get("recipe") != recipe.name:
-            raise RecipeError(f"{root} was recorded from recipe {previous.get('recipe')!r}, not {recipe.name!r}")
-        settings = EnvSettings(**previous["env"])
-        seed = previous["next_seed"]
-    settings = settings or EnvSettings()
+        check_resume(root, previous, recipe, seed, settings, models)
+        settings, seed = EnvSettings(**previous["env"]), previous["next_seed"]
+    settings, seed = settings or EnvSettings(), seed or 0
     if not previous:  # the recipe's cameras, and any others its controllers read
-        needed = cameras_needed(controllers, sources or LibrarySources())
+        needed = cameras_needed(controllers, sources)
         settings = replace(settings, cameras=tuple(dict.fromkeys((*recipe.cameras, *needed))))
     env = make_env("rgb", settings.resolution, settings.clearance_mm, settings.cameras)
     recorder = LeRobotRecorder(env, root, task=recipe.task, resume=resume,
-                               metadata={"recipe": recipe.name, "env": asdict(settings),
+                               metadata={"recipe": recipe.name, "env": asdict(settings), "controller_models": models,
                                          "expert": asdict(recipe.expert), "train_episodes": recipe.train_episodes})
     recorded = Counter(e.get("controller_name") for e in recorder.episodes)  # per controller, when resuming
     if recipe.driver == "controllers":  # a controller with more episodes than asked for counts only what was asked
@@ -71,6 +72,24 @@ def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None,
         bar.close()
         env.close()
     return recorder.sidecar
+
+
+def check_resume(root: Path, previous: dict, recipe: Recipe, seed: int | None, settings: EnvSettings | None,
+                 models: dict[str, str]) -> None:
+    """Refuse to continue a dataset with another recipe, seed, env setting or controller model than its own."""
+    if previous.get("recipe") != recipe.name:
+        raise RecipeError(f"{root} was recorded from recipe {previous.get('recipe')!r}, not {recipe.name!r}")
+    ours = asdict(settings) if settings is not None else {}
+    ours.pop("cameras", None)  # the recipe's and its controllers' cameras, not a setting of the run
+    clash = [f"{k} {ours[k]} (it has {v})" for k, v in previous["env"].items() if k in ours and ours[k] != v]
+    if seed is not None and seed != previous["next_seed"]:
+        clash.append(f"first seed {seed} (it continues from seed {previous['next_seed']})")
+    clash += [f"another {name} model ({model}, it has {previous.get('controller_models', {}).get(name)})"
+              for name, model in models.items() if previous.get("controller_models", {}).get(name, model) != model]
+    if clash:
+        raise RecipeError(f"--resume continues {root} with its own settings, but this run asks for "
+                          f"{'; '.join(clash)}: give the dataset's own (or leave them out), or record into a new "
+                          f"--root")
 
 
 def _save(recorder, bar, success: bool, seed: int, **info) -> None:

@@ -14,6 +14,7 @@ from pathlib import Path
 from policy_composer.composition import PAPER_COMPOSED, back_offs, load_episodes, sequence_counts
 from policy_composer.controller_table import PAPER as PAPER_TABLE
 from policy_composer.controller_table import SUBTASK_COLUMNS
+from policy_composer.data import atomic
 from policy_composer.pipeline import StageRecord
 from policy_composer.selector.compose import ComposedEpisode
 
@@ -55,8 +56,8 @@ def write_report(out: Path, profile, records: dict[str, StageRecord], wall_secon
     ]
     md = "\n\n".join(sections) + "\n"
     path = out / "report.md"
-    path.write_text(md)
-    (out / "report.html").write_text(to_html(md, f"policy-composer report ({profile.name})"))
+    atomic.write_text(path, md)
+    atomic.write_text(out / "report.html", to_html(md, f"policy-composer report ({profile.name})"))
     return path
 
 

@@ -76,9 +76,10 @@ def transition_pairs(episode_index: torch.Tensor, frame_skip: int) -> tuple[torc
 
 
 def train_dynamics(latents: torch.Tensor, images: torch.Tensor, episode_index: torch.Tensor, config: DynamicsConfig,
-                   vae: VAE, out: str | Path | None = None,
-                   progress: bool = True) -> tuple[LatentDynamics, list[float]]:
-    """Fit D_w on one controller's frames: latents (N, L) from the VAE, their uint8 images and episodes."""
+                   vae: VAE, out: str | Path | None = None, progress: bool = True,
+                   trained_with: dict[str, str] | None = None) -> tuple[LatentDynamics, list[float]]:
+    """Fit D_w on one controller's frames: latents (N, L) from the VAE, their uint8 images and episodes.
+    `trained_with` names the VAE and the controller's model (see `weights_id`) in the checkpoint."""
     t0 = time.perf_counter()
     if len(latents) < 2:
         raise ValueError(f"controller {config.controller!r} has {len(latents)} recorded frames; record its rollouts "
@@ -101,7 +102,7 @@ def train_dynamics(latents: torch.Tensor, images: torch.Tensor, episode_index: t
                         gen, f"training dynamics ({config.controller})", progress, digits=2)
     if out is not None:
         log = {"pairs": len(src), "losses": losses, "seconds": round(time.perf_counter() - t0, 1)}
-        save_checkpoint(model, config, out, log)
+        save_checkpoint(model, config, out, log, trained_with)
     return model, losses
 
 

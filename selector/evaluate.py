@@ -9,6 +9,7 @@ from pathlib import Path
 
 import torch
 
+from policy_composer.data import atomic
 from policy_composer.data.features import image_key
 from policy_composer.data.frames import episode_bounds, load_frames
 from policy_composer.selector.goal_score import goal_score_metrics, load_goal_score
@@ -30,7 +31,7 @@ def evaluate_goal_scores(models: str | Path, demos: str | Path, out: str | Path,
         curves[camera] = model.scores(frames[image_key(camera)])
         metrics[camera] = goal_score_metrics(curves[camera], frames["progress"], frames["episode_index"])
     _plot(curves, frames, out / "goal_score.png")
-    with open(out / "goal_score.csv", "w", newline="") as f:
+    with atomic.replacing(out / "goal_score.csv") as tmp, open(tmp, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["camera", "spearman", "mae", "episodes", "frames"])
         for camera, m in metrics.items():
@@ -39,7 +40,7 @@ def evaluate_goal_scores(models: str | Path, demos: str | Path, out: str | Path,
              "| camera | Spearman with true progress | mean abs. error |", "|---|---|---|"]
     lines += [f"| {c} | {m['spearman']:.3f} | {m['mae']:.3f} |" for c, m in metrics.items()]
     lines += ["", f"{next(iter(metrics.values()))['episodes']} held-out episodes; the figure is goal_score.png."]
-    (out / "goal_score.md").write_text("\n".join(lines) + "\n")
+    atomic.write_text(out / "goal_score.md", "\n".join(lines) + "\n")
     return metrics
 
 
@@ -68,5 +69,6 @@ def _plot(curves: dict[str, torch.Tensor], frames: dict[str, torch.Tensor], path
     axes[0][0].set_ylabel("goal score (solid), true progress (dashed)")
     axes[0][-1].legend(fontsize=7, loc="lower right")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    with atomic.replacing(path) as tmp:
+        fig.savefig(tmp, dpi=120)
     plt.close(fig)

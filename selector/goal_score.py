@@ -55,8 +55,10 @@ class GoalScoreModel(nn.Module):
 
 
 def train_goal_score(images: torch.Tensor, progress: torch.Tensor, config: GoalScoreConfig,
-                     out: str | Path | None = None, progress_bar: bool = True) -> tuple[GoalScoreModel, list[float]]:
-    """Fit G to uint8 images (N, 3, S, S) and their progress labels in [0, 1]."""
+                     out: str | Path | None = None, progress_bar: bool = True,
+                     trained_with: dict[str, str] | None = None) -> tuple[GoalScoreModel, list[float]]:
+    """Fit G to uint8 images (N, 3, S, S) and their progress labels in [0, 1]; `trained_with` names the VAE whose
+    reconstructions are among the images, if any."""
     t0 = time.perf_counter()
     if progress.min() < 0:
         raise ValueError("progress labels must be in [0, 1]: train the goal score on successful demonstrations only")
@@ -70,7 +72,7 @@ def train_goal_score(images: torch.Tensor, progress: torch.Tensor, config: GoalS
                         gen, f"training goal score ({config.camera})", progress_bar, postfix="nll")
     if out is not None:
         log = {"frames": len(images), "losses": losses, "seconds": round(time.perf_counter() - t0, 1)}
-        save_checkpoint(model, config, out, log)
+        save_checkpoint(model, config, out, log, trained_with)
     return model, losses
 
 

@@ -16,6 +16,7 @@ import torch
 from policy_composer.data.features import DatasetError, image_key, read_sidecar
 from policy_composer.data.frames import load_frames
 from policy_composer.data.recipes import check_recipe
+from policy_composer.learning.checkpoint import weights_id
 from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
 from policy_composer.selector.dynamics import train_dynamics
 from policy_composer.selector.goal_score import train_goal_score
@@ -57,7 +58,9 @@ def train_world_model(rollouts: str | Path, demos: str | Path, out: str | Path, 
         vae, _ = train_vae(torch.cat([ro[image_key(camera)], demo[image_key(camera)]]), vae_config, out / "vae",
                            progress)
         timings["vae"] = time.perf_counter() - t0
-    names = read_sidecar(rollouts)["controllers"]
+    sidecar = read_sidecar(rollouts)
+    names, models = sidecar["controllers"], sidecar.get("controller_models", {})
+    vae_id = weights_id(out / "vae")
     latents = vae.latents(ro[image_key(camera)])
     for index, name in enumerate(names):
         if controllers is not None and name not in controllers:
@@ -65,8 +68,9 @@ def train_world_model(rollouts: str | Path, demos: str | Path, out: str | Path, 
         rows = (ro["controller"] == index).nonzero().flatten()
         config = replace(dynamics_config, controller=name, latent_dim=vae_config.latent_dim)
         t0 = time.perf_counter()
+        parts = {"vae": vae_id, **({"controller": models[name]} if name in models else {})}
         train_dynamics(latents[rows], ro[image_key(camera)][rows], ro["episode_index"][rows], config, vae,
-                       out / "dynamics" / name, progress)
+                       out / "dynamics" / name, progress, parts)
         timings[f"dynamics {name}"] = time.perf_counter() - t0
     return timings
 
@@ -83,11 +87,13 @@ def train_goal_scores(demos: str | Path, out: str | Path, cameras: tuple[str, ..
     vae = load_vae(out / "vae") if (out / "vae" / "config.json").is_file() else None
     timings = {}
     for camera in cameras:
-        images, target = frames[image_key(camera)], frames["progress"]
+        images, target, parts = frames[image_key(camera)], frames["progress"], {}
         if vae is not None and vae.config.camera == camera:
             images, target = torch.cat([images, reconstructions(vae, images)]), torch.cat([target, target])
+            parts = {"vae": weights_id(out / "vae")}
         t0 = time.perf_counter()
-        train_goal_score(images, target, replace(config, camera=camera), out / "goal_score" / camera, progress)
+        train_goal_score(images, target, replace(config, camera=camera), out / "goal_score" / camera, progress,
+                         parts)
         timings[f"goal score {camera}"] = time.perf_counter() - t0
     return timings
 

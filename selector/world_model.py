@@ -13,17 +13,31 @@ from pathlib import Path
 import torch
 
 from policy_composer.data.frames import to_model_image
-from policy_composer.learning.checkpoint import CheckpointError
+from policy_composer.learning.checkpoint import CheckpointError, trained_with, weights_id
 from policy_composer.selector.core import Selector
 from policy_composer.selector.dynamics import LatentDynamics, load_dynamics
 from policy_composer.selector.goal_score import GoalScoreModel, load_goal_score
 from policy_composer.selector.vae import VAE, load_vae
 
 
+def check_trained_together(vae: Path, parts: list[Path]) -> None:
+    """Refuse dynamics models and goal scores trained with another VAE than `vae` (a retraining cut short, or
+    folders mixed by hand): their latents or reconstructions would not be this VAE's."""
+    vae_id = weights_id(vae)
+    for part in parts:
+        if not (part / "config.json").is_file():
+            continue  # missing: its loader says how to train it
+        made_with = trained_with(part, "world-model part", "policy-composer train world-model").get("vae")
+        if made_with is not None and made_with != vae_id:
+            raise CheckpointError(f"{part} was trained with another VAE than the one in {vae}; train the world model "
+                                  f"again as one: `policy-composer train world-model`, then `train goal-score`")
+
+
 class GearWorldModel:
     """Implements the selector's GoalScore on latents, and turns observations into latents."""
 
-    def __init__(self, vae: VAE, dynamics: dict[str, LatentDynamics], goal: GoalScoreModel):
+    def __init__(self, vae: VAE, dynamics: dict[str, LatentDynamics], goal: GoalScoreModel,
+                 controller_models: dict[str, str] | None = None):
         camera = vae.config.camera
         if goal.config.camera != camera:
             raise CheckpointError(f"the selector's goal score must read the VAE's camera ({camera!r}) to score decoded "
@@ -34,6 +48,7 @@ class GearWorldModel:
                                   f"the selector compares them over one horizon, so train them with one frame_skip")
         self.vae, self.dynamics, self.goal = vae, dynamics, goal
         self.camera = camera
+        self.controller_models = controller_models or {}  # the model each dynamics model's rollouts ran, by id
         self.frame_skip = skips.pop() if skips else 1
 
     @classmethod
@@ -49,8 +64,23 @@ class GearWorldModel:
             raise CheckpointError(f"{root} has no dynamics model for {missing or 'any controller'} "
                                   f"(it has {available}); "
                                   f"record their rollouts and train them with `policy-composer train world-model`")
+        goal = root / "goal_score" / vae.config.camera
+        check_trained_together(root / "vae", [folder / n for n in names] + [goal])
         dynamics = {n: load_dynamics(folder / n, vae.config.latent_dim) for n in names}
-        return cls(vae, dynamics, load_goal_score(root / "goal_score" / vae.config.camera))
+        models = {n: trained_with(folder / n, "dynamics model", "policy-composer train world-model").get("controller")
+                  for n in names}
+        return cls(vae, dynamics, load_goal_score(goal), {n: m for n, m in models.items() if m})
+
+    def check_controllers(self, models: dict[str, str]) -> None:
+        """Refuse controllers (their models by `weights_id`) other than those whose rollouts trained the dynamics
+        models: the predictions would be of another policy."""
+        for name, model in models.items():
+            made_with = self.controller_models.get(name)
+            if made_with is not None and made_with != model:
+                raise CheckpointError(
+                    f"the {name} dynamics model was trained on rollouts of another model than the {name} given "
+                    f"(weights {made_with}, given {model}); give the model it was trained on, or record "
+                    f"{name}'s rollouts with this one and train the world model again")
 
     @torch.no_grad()
     def encode(self, obs) -> torch.Tensor:

@@ -84,3 +84,85 @@ def test_training_on_the_wrong_recipe_is_refused(request, tmp_path, command, wro
     result = run_cli(*command, str(dataset), "--out", str(tmp_path / "model"), cwd=tmp_path)
     assert result.returncode == 2 and message in result.stderr, result.stderr[-2000:]
     assert not (tmp_path / "model").exists() and tree_digest(dataset) == before
+
+
+def _copy(dataset: Path, tmp_path: Path) -> Path:
+    import shutil
+
+    return Path(shutil.copytree(dataset, tmp_path / "input" / dataset.name))
+
+
+def _vae(root: Path, truncate: bool = False) -> Path:
+    """A real (untrained) VAE checkpoint in a world-model folder, its weights cut in half if `truncate`."""
+    from policy_composer.learning.checkpoint import save_checkpoint
+    from policy_composer.selector.configuration import VAEConfig
+    from policy_composer.selector.vae import VAE
+
+    config = VAEConfig(image_size=32, latent_dim=8)
+    save_checkpoint(VAE(config), config, root / "vae")
+    if truncate:
+        weights = root / "vae" / "model.safetensors"
+        weights.write_bytes(weights.read_bytes()[: weights.stat().st_size // 2])
+    return root
+
+
+def _unreadable_config(root: Path) -> Path:
+    (root / "vae").mkdir(parents=True)
+    (root / "vae" / "config.json").write_text("{")
+    (root / "vae" / "model.safetensors").write_bytes(b"x")
+    return root
+
+
+def _unreadable_parquet(ds: Path) -> list[str]:
+    (ds / "data" / "chunk-000" / "file-000.parquet").write_bytes(b"not a parquet file")
+    return ["train", "policy", "--dataset", str(ds)]
+
+
+def _video_missing(ds: Path) -> list[str]:
+    (ds / "videos" / "observation.images.head" / "chunk-000" / "file-001.mp4").unlink()
+    return ["train", "policy", "--dataset", str(ds)]
+
+
+def _broken_info(ds: Path) -> list[str]:
+    (ds / "meta" / "info.json").write_text('{"codebase_version": "v3.0", ')
+    return ["train", "policy", "--dataset", str(ds)]
+
+
+@pytest.mark.parametrize("make_args, message", [
+    (_unreadable_parquet, "file-000.parquet is not a readable parquet file"),
+    (_video_missing, "is missing 1 video file(s) its episodes point to (videos/observation.images.head/"),
+    (_broken_info, "info.json is not readable JSON"),
+    (lambda ds: ["train", "goal-score", "--demos", str(ds.parent / "gear-ful-task-demos")], "no dataset at"),
+    (lambda ds: ["record", "gear-insertion-demos", "--root", str(ds), "--resume", "--resolution", "32"],
+     "but this run asks for resolution 32 (it has 64)"),
+    (lambda ds: ["record", "gear-insertion-demos", "--root", str(ds), "--resume", "--seed", "7"],
+     "first seed 7 (it continues from seed"),
+    (lambda ds: ["record", "gear-full-task-demos", "--root", str(ds), "--resume"],
+     "was recorded from recipe 'gear-insertion-demos', not 'gear-full-task-demos'"),
+])
+def test_a_bad_dataset_is_named_with_the_fix_and_left_as_it_was(insertion_demos, tmp_path, make_args, message):
+    """Unreadable, incomplete or mistyped datasets, and a --resume that contradicts the dataset: exit 2 with one line
+    that names the file or setting and what to do, before any work, and the dataset stays as it was."""
+    ds = _copy(insertion_demos, tmp_path)
+    args = make_args(ds)
+    before = tree_digest(ds)
+    result = run_cli(*args, *(["--out", str(tmp_path / "model")] if args[0] == "train" else []), cwd=tmp_path)
+    assert result.returncode == 2, result.stdout + result.stderr[-2000:]
+    assert message in result.stderr.strip().splitlines()[-1] and "Traceback" not in result.stderr, result.stderr[-2000:]
+    assert tree_digest(ds) == before and not (tmp_path / "model").exists()
+
+
+@pytest.mark.parametrize("make_models, message", [
+    (_unreadable_config, "config.json is not a readable config"),
+    (lambda root: _vae(root, truncate=True), "model.safetensors does not hold the weights of this VAE"),
+    (lambda root: _vae(root), "has no dynamics model for any controller"),
+])
+def test_a_bad_model_folder_is_named_with_the_fix_and_left_as_it_was(tmp_path, make_models, message):
+    """Unreadable or incomplete model folders given to `compose`: one line naming the file and the fix, nothing
+    written, the folder untouched."""
+    models = make_models(tmp_path / "models")
+    before = tree_digest(models)
+    result = run_cli("compose", "--models", str(models), "--out", str(tmp_path / "run"), cwd=tmp_path)
+    assert result.returncode == 2, result.stdout + result.stderr[-2000:]
+    assert message in result.stderr.strip().splitlines()[-1] and "Traceback" not in result.stderr
+    assert tree_digest(models) == before and not (tmp_path / "run").exists()

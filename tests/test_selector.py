@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
+from pathlib import Path
 
 import gymnasium as gym
 import pytest
@@ -79,6 +80,56 @@ def test_mismatched_checkpoints_are_refused(world, tmp_path):
         load_dynamics(root / "vae")
 
 
+def test_parts_not_trained_together_are_refused(world, controller_rollouts, tmp_path):
+    """A VAE trained again (as by a `train world-model` cut short after it) is not used with the dynamics models and
+    goal score of the old one, and a dynamics model is not used with another model's controller."""
+    import shutil
+
+    from policy_composer.selector.vae import train_vae
+
+    root = Path(shutil.copytree(world[0], tmp_path / "world"))
+    dynamics = root / "dynamics" / "mp_insert" / "config.json"
+    config = json.loads(dynamics.read_text())
+    dynamics.write_text(json.dumps({**config, "trained_with": {**config["trained_with"], "controller": "aaaa"}}))
+    model = GearWorldModel.load(root)
+    model.check_controllers({"mp_insert": "aaaa", "cnn_insert": "cccc"})  # its own model; one it has no dynamics of
+    with pytest.raises(CheckpointError, match="the mp_insert dynamics model was trained on rollouts of another model"):
+        model.check_controllers({"mp_insert": "bbbb"})
+    images = load_frames(controller_rollouts, ("head",), SIZE)[image_key("head")]
+    train_vae(images, replace(model.vae.config, epochs=1, seed=1), root / "vae", progress=False)
+    with pytest.raises(CheckpointError, match="was trained with another VAE than the one in"):
+        GearWorldModel.load(root)
+
+
+def test_a_checkpoint_is_replaced_whole_or_not_at_all(world, tmp_path):
+    """A save that fails half-way (here: a training log that cannot be written) leaves the old checkpoint as it was
+    and no partial folder behind."""
+    import shutil
+
+    from conftest import tree_digest
+
+    from policy_composer.learning.checkpoint import save_checkpoint
+
+    folder = Path(shutil.copytree(world[0] / "dynamics" / "mp_pick", tmp_path / "mp_pick"))
+    before = tree_digest(folder)
+    model = load_dynamics(folder)
+    with pytest.raises(TypeError):
+        save_checkpoint(model, model.config, folder, log={"not json": object()})
+    assert tree_digest(folder) == before and sorted(p.name for p in tmp_path.iterdir()) == ["mp_pick"]
+    save_checkpoint(model, model.config, folder, log={"epochs": 1})
+    assert json.loads((folder / "train_log.json").read_text()) == {"epochs": 1}
+
+
+def test_a_composed_run_continues_only_with_its_own_settings(tmp_path):
+    from policy_composer.composition import RunError, check_out
+
+    settings = {"models": "/models", "controller_models": {"cnn_insert": "aaaa"}, "resolution": 128}
+    (tmp_path / "run.json").write_text(json.dumps(settings))
+    check_out(tmp_path, resume=True, settings=dict(settings))
+    with pytest.raises(RunError, match="this run differs in controller_models, resolution"):
+        check_out(tmp_path, resume=True, settings={**settings, "controller_models": {}, "resolution": 64})
+
+
 def test_a_failing_controller_is_dropped_until_another_succeeds():
     """Seed 7 of the 10-trial run: a move that cannot reach the pre-insertion pose was retried until max_steps."""
     eligibility = Eligibility(max_failures=2)  # the default is 1; 2 shows the count
@@ -108,13 +159,19 @@ def test_the_summary_counts_back_offs_and_what_came_of_them():
 
 
 def test_a_composed_episode_runs_end_to_end(world):
+    """The selector's first choice is explained by its scores, the frames carry the goal score, and an episode depends
+    on its seed only."""
     root, _ = world
     model = GearWorldModel.load(root)
     env = gym.make("GearAssembly-v1", obs_mode="rgb", cameras=("head",), camera_width=SIZE, camera_height=SIZE)
     library = build_library(env, ["mp_pick", "mp_insert"], LibrarySources(max_grasp_offset=0.0))
     frames = []
-    result = compose_episode(env, library, model, ComposeConfig(horizon=3, samples=4, max_steps=150), seed=0,
+    config = ComposeConfig(horizon=3, samples=4, max_steps=150)
+    result = compose_episode(env, library, model, config, seed=0,
                              on_frame=lambda obs, name, score: frames.append((name, score)))
+    # Episode k of a run is the same seed run alone: seed 0 again after seed 1 decides and moves identically.
+    compose_episode(env, library, model, config, seed=1)
+    assert compose_episode(env, library, model, config, seed=0).to_dict() == result.to_dict()
     env.close()
     first = result.decisions[0]
     # At the reset only the pick may start: the insertion is outside its initiation set and gets no score.
@@ -145,3 +202,17 @@ def test_knock_out_puts_the_gear_back_on_the_table(state_env):
         obs, *_ = env.step(u.flat_to_dict_action(u.hold_action()[0]))
     assert SUBTASKS["pick"].can_start(SceneGeometry(env))  # the pick-up may start again
     env.close()
+
+
+def test_a_run_killed_mid_episode_line_keeps_its_finished_episodes(tmp_path):
+    """The last line of episodes.jsonl cut off by a kill is an episode that runs again; a damaged line before it is
+    named, not skipped."""
+    from policy_composer.composition import RunError, load_episodes
+
+    line = json.dumps({"seed": 0, "success": True, "steps": 10, "knocked_out": False, "activations": [],
+                       "decisions": []})
+    (tmp_path / "episodes.jsonl").write_text(line + "\n" + line[:25])
+    assert [e.seed for e in load_episodes(tmp_path)] == [0]
+    (tmp_path / "episodes.jsonl").write_text(line[:25] + "\n" + line + "\n")
+    with pytest.raises(RunError, match="episodes.jsonl, line 1, is not a composed episode"):
+        load_episodes(tmp_path)

@@ -6,7 +6,7 @@ import re
 from pathlib import Path
 
 from policy_composer.data import journal
-from policy_composer.data.features import DatasetError, read_info, read_sidecar
+from policy_composer.data.features import DatasetError, check_files, read_info, read_sidecar
 
 REPO_ID = re.compile(r"^[A-Za-z0-9][\w.-]*/[A-Za-z0-9][\w.-]*$")
 
@@ -30,31 +30,12 @@ def _episode_success(root: Path, info: dict) -> list[bool] | None:
     return [last[e] for e in sorted(last)]
 
 
-def missing_videos(root: Path, info: dict) -> list[str]:
-    """The video files the episodes' metadata points to that are not on disk."""
-    import pyarrow.parquet as pq
-
-    keys = [k for k, v in info["features"].items() if v["dtype"] == "video"]
-    columns = [f"videos/{key}/{index}" for key in keys for index in ("chunk_index", "file_index")]
-    wanted = set()
-    for path in sorted((root / "meta" / "episodes").rglob("*.parquet")):
-        table = pq.read_table(path, columns=columns).to_pydict()
-        for key in keys:
-            for chunk, file in zip(table[f"videos/{key}/chunk_index"], table[f"videos/{key}/file_index"]):
-                wanted.add(info["video_path"].format(video_key=key, chunk_index=chunk, file_index=file))
-    return sorted(p for p in wanted if not (root / p).is_file())
-
-
 def summarize(root: str | Path) -> dict:
     """What `policy-composer dataset info` prints: size, features, cameras, fps, success rate, provenance."""
     root = Path(root)
     journal.recover(root)
     info = read_info(root)
-    missing = missing_videos(root, info)
-    if missing:
-        shown = ", ".join(missing[:3]) + (", ..." if len(missing) > 3 else "")
-        raise DatasetError(f"{root} is missing {len(missing)} video file(s) its episodes point to ({shown}): "
-                           "restore them, or record the dataset again")
+    check_files(root, info)
     sidecar = read_sidecar(root)
     features = info["features"]
     cameras = {k.removeprefix("observation.images."): tuple(v["shape"]) for k, v in features.items()
@@ -152,7 +133,7 @@ def drop_controller(root: str | Path, controller: str) -> int:
 
     from lerobot.datasets.dataset_tools import delete_episodes
 
-    from policy_composer.data.features import SIDECAR, DatasetError, open_dataset
+    from policy_composer.data.features import SIDECAR, open_dataset
 
     root = Path(root)
     sidecar = read_sidecar(root)

@@ -59,7 +59,7 @@ def read_info(root: str | Path) -> dict:
     if not info_path.is_file():
         raise DatasetError(f"{root} is not a LeRobot dataset: it has no meta/info.json "
                            f"(expected a LeRobotDataset {FORMAT_VERSION} folder, as `policy-composer record` writes)")
-    info = json.loads(info_path.read_text())
+    info = read_json(info_path, "re-record the dataset (or restore the file from a copy)")
     if info.get("codebase_version") != FORMAT_VERSION:
         raise DatasetError(f"{root} is a LeRobot dataset of format {info.get('codebase_version')}; this project reads "
                            f"{FORMAT_VERSION} (lerobot {LEROBOT_VERSION}); convert it with lerobot's v30 conversion "
@@ -68,8 +68,20 @@ def read_info(root: str | Path) -> dict:
 
 
 def read_sidecar(root: str | Path) -> dict:
+    """The project's metadata of a dataset it recorded ({} if there is none)."""
     path = Path(root) / SIDECAR
-    return json.loads(path.read_text()) if path.is_file() else {}
+    return read_json(path, "re-record the dataset (or restore the file from a copy)") if path.is_file() else {}
+
+
+def read_json(path: Path, fix: str) -> dict:
+    """A JSON object from `path`, or a DatasetError that names the file and `fix`."""
+    try:
+        value = json.loads(path.read_text())
+    except (ValueError, UnicodeDecodeError) as e:
+        raise DatasetError(f"{path} is not readable JSON ({e}); {fix}") from None
+    if not isinstance(value, dict):
+        raise DatasetError(f"{path} holds a JSON {type(value).__name__}, not an object; {fix}")
+    return value
 
 
 def check_features(root: str | Path, info: dict, required: dict[str, tuple[int, ...] | None],
@@ -91,6 +103,38 @@ def check_features(root: str | Path, info: dict, required: dict[str, tuple[int, 
                            f"(the env's control frequency)")
 
 
+def check_files(root: Path, info: dict) -> None:
+    """Raise DatasetError naming the first parquet file that does not read, or the video files that are missing."""
+    import pyarrow.parquet as pq
+
+    for path in sorted((root / "data").rglob("*.parquet")) + sorted((root / "meta").rglob("*.parquet")):
+        try:
+            pq.read_metadata(path)
+        except (OSError, ValueError) as e:
+            raise DatasetError(f"{path} is not a readable parquet file ({e}); record the dataset again "
+                               "(or restore the file from a copy)") from None
+    missing = missing_videos(root, info)
+    if missing:
+        shown = ", ".join(missing[:3]) + (", ..." if len(missing) > 3 else "")
+        raise DatasetError(f"{root} is missing {len(missing)} video file(s) its episodes point to ({shown}): "
+                           "restore them, or record the dataset again")
+
+
+def missing_videos(root: Path, info: dict) -> list[str]:
+    """The video files the episodes' metadata points to that are not on disk."""
+    import pyarrow.parquet as pq
+
+    keys = [k for k, v in info["features"].items() if v["dtype"] == "video"]
+    columns = [f"videos/{key}/{index}" for key in keys for index in ("chunk_index", "file_index")]
+    wanted = set()
+    for path in sorted((root / "meta" / "episodes").rglob("*.parquet")):
+        table = pq.read_table(path, columns=columns).to_pydict()
+        for key in keys:
+            for chunk, file in zip(table[f"videos/{key}/chunk_index"], table[f"videos/{key}/file_index"]):
+                wanted.add(info["video_path"].format(video_key=key, chunk_index=chunk, file_index=file))
+    return sorted(p for p in wanted if not (root / p).is_file())
+
+
 def open_dataset(root: str | Path, required: dict[str, tuple[int, ...] | None] | None = None,
                  fps: int | None = None, episodes: list[int] | None = None, **kwargs):
     """Check a local dataset, then load it with plain `LeRobotDataset(repo_id, root=...)` (offline)."""
@@ -102,5 +146,6 @@ def open_dataset(root: str | Path, required: dict[str, tuple[int, ...] | None] |
     recover(root)  # roll back an episode whose save was interrupted
     info = read_info(root)
     check_features(root, info, required or {}, fps)
+    check_files(root, info)
     repo_id = read_sidecar(root).get("repo_id", f"local/{root.name}")
     return LeRobotDataset(repo_id, root=root, episodes=episodes, **kwargs)

@@ -6,7 +6,7 @@ import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
-from policy_composer.data.features import read_sidecar
+from policy_composer.data.features import read_info, read_sidecar
 from policy_composer.tasks.spec import CAMERA_NAMES
 
 RECIPE_DIR = Path(__file__).resolve().parents[2] / "datasets" / "recipes"
@@ -57,6 +57,7 @@ class Recipe:
 def check_recipe(root: str | Path, expected: str, purpose: str) -> None:
     """Refuse a dataset whose metadata names another of the project's recipes than the one `purpose` needs. A
     dataset of a recipe of the user's own (a name the project does not have) is taken as it is."""
+    read_info(root)  # first, that it is a dataset at all
     recipe = read_sidecar(root).get("recipe")
     if recipe != expected and recipe in available_recipes():
         raise RecipeError(f"{root} holds {recipe} episodes, but training {purpose} needs {expected}: pass a "

@@ -2,16 +2,21 @@
 
 No pickle anywhere: a checkpoint folder holds `model.safetensors`, `config.json` and, optionally, the
 training log. Loading checks the config against the dataclass, so a checkpoint from another configuration
-or another kind of model fails with an error that says so.
+or another kind of model fails with an error that says so. The folder is written aside and renamed into place,
+so it is always one training's whole output. `config.json` also names the models it was trained with (by
+`weights_id`), so parts that must belong together can be checked.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 from collections.abc import Callable
 from dataclasses import asdict, fields
 from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
+
+from policy_composer.data.atomic import replacing_folder
 
 if TYPE_CHECKING:  # torch is imported where a model is saved or built, so that the command line starts fast
     from torch import nn
@@ -23,25 +28,54 @@ class CheckpointError(ValueError):
     """A checkpoint that is missing, of another kind of model, or from another configuration."""
 
 
-def save_checkpoint(model: nn.Module, config, out: str | Path, log: dict | None = None) -> Path:
+def save_checkpoint(model: nn.Module, config, out: str | Path, log: dict | None = None,
+                    trained_with: dict[str, str] | None = None) -> Path:
+    """Write the model to `out` as a whole; `trained_with` names (by `weights_id`) the models it was trained with."""
     from safetensors.torch import save_file
 
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    save_file({k: v.contiguous() for k, v in model.state_dict().items()}, str(out / "model.safetensors"))
-    (out / "config.json").write_text(json.dumps({"kind": type(config).__name__, **asdict(config)}, indent=1))
-    if log is not None:
-        (out / "train_log.json").write_text(json.dumps(log, indent=1))
+    with replacing_folder(out) as tmp:
+        save_file({k: v.contiguous() for k, v in model.state_dict().items()}, str(tmp / "model.safetensors"))
+        meta = {"kind": type(config).__name__, "trained_with": trained_with or {}}
+        (tmp / "config.json").write_text(json.dumps({**meta, **asdict(config)}, indent=1))
+        if log is not None:
+            (tmp / "train_log.json").write_text(json.dumps(log, indent=1))
     return out
+
+
+def weights_id(folder: str | Path) -> str:
+    """A short digest of the weights in `folder` (its .safetensors files): equal ids, the same trained model."""
+    digest = hashlib.sha256()
+    for path in sorted(Path(folder).glob("*.safetensors")):
+        with open(path, "rb") as f:
+            digest.update(hashlib.file_digest(f, "sha256").digest())
+    return digest.hexdigest()[:16]
+
+
+def _read_config(path: Path, what: str, train_hint: str) -> dict:
+    if not (path / "config.json").is_file() or not (path / "model.safetensors").is_file():
+        raise CheckpointError(f"no {what} checkpoint in {path} (expected config.json and model.safetensors); "
+                              f"train one with `{train_hint}`")
+    try:
+        raw = json.loads((path / "config.json").read_text())
+        if not isinstance(raw, dict):
+            raise ValueError("not a JSON object")
+    except (ValueError, UnicodeDecodeError) as e:
+        raise CheckpointError(f"{path / 'config.json'} is not a readable config ({e}); train the {what} again with "
+                              f"`{train_hint}`") from None
+    return raw
+
+
+def trained_with(path: str | Path, what: str, train_hint: str) -> dict[str, str]:
+    """The models (by `weights_id`) the checkpoint at `path` was trained with: {} if it names none."""
+    return _read_config(Path(path), what, train_hint).get("trained_with") or {}
 
 
 def load_config(path: str | Path, config_cls: type[C], what: str, train_hint: str) -> C:
     """The config of the checkpoint at `path`, or a CheckpointError naming what is wrong and how to fix it."""
     path = Path(path)
-    if not (path / "config.json").is_file() or not (path / "model.safetensors").is_file():
-        raise CheckpointError(f"no {what} checkpoint in {path} (expected config.json and model.safetensors); "
-                              f"train one with `{train_hint}`")
-    raw = json.loads((path / "config.json").read_text())
+    raw = _read_config(path, what, train_hint)
+    raw.pop("trained_with", None)
     kind = raw.pop("kind", config_cls.__name__)
     if kind != config_cls.__name__:
         raise CheckpointError(f"{path} holds a {kind} checkpoint, not a {what} ({config_cls.__name__})")
@@ -59,5 +93,10 @@ def load_checkpoint(path: str | Path, config_cls: type[C], build: Callable[[C], 
 
     config = load_config(path, config_cls, what, train_hint)
     model = build(config)
-    model.load_state_dict(load_file(str(Path(path) / "model.safetensors")))
+    weights = Path(path) / "model.safetensors"
+    try:
+        model.load_state_dict(load_file(str(weights)))
+    except Exception as e:  # a truncated or foreign file: safetensors, or torch on missing and unexpected keys
+        raise CheckpointError(f"{weights} does not hold the weights of this {what} "
+                              f"({str(e).splitlines()[0][:200]}); train it again with `{train_hint}`") from None
     return model.eval()
