@@ -53,11 +53,14 @@ HEAD_EYE, HEAD_TARGET = [0.35, -0.10, 0.70], [0.0, -0.10, 0.05]
 FOREARM_VIEWS = {"left": ([-0.08, 0.06, 0.08], [0.0, 0.0, 0.15]), "right": ([0.16, -0.15, 0.03], [0.10, 0.0, 0.07])}
 # Bump when a change alters what the task simulates or renders: the main job's recording stages key on it, so
 # recordings made before the change are not reused after it.
-TASK_REVISION = 3  # 2: the right forearm camera sees the peg; 3: the scene is rebuilt at every reset
+# 2: the right forearm camera sees the peg; 3: the scene is rebuilt at every reset; 4: a gear tilted on the peg is
+# not inserted
+TASK_REVISION = 4
 GEAR_XY_CENTER = (0.0, -0.30)
 GEAR_XY_RANGE = (0.10, 0.06)  # half-ranges of the gear's uniform position on the table
 PLATE_GRIP = 0.024  # right finger position holding the plate
 ALIGN_TOL_DEG = 8.0
+INSERT_TILT_DEG = 15.0  # a gear at or on the peg tilted further is caught on it, not going down it
 SEATED_TOL = 0.004  # gear bottom at most this far above the plate
 LIFT_HEIGHT = 0.03
 GRASP_DISTANCE = 0.05  # gear origin to the left TCP while grasped (m)
@@ -270,8 +273,9 @@ class GearAssemblyEnv(BaseEnv):
         lifted = grasped & (self.gear.pose.p[:, 2] > LIFT_HEIGHT)
         aligned = axis_cos > np.cos(np.deg2rad(ALIGN_TOL_DEG))
         at_peg = (grasped & (radial < PRE_INSERT_RADIUS) & (height >= peg_h - 0.003)
-                  & (height <= peg_h + PRE_INSERT_HEIGHT) & (axis_cos > np.cos(np.deg2rad(15))))
-        inserted = (radial < self.gear_spec.hole_radius + 0.0015) & (height < peg_h - 0.003) & (height > -0.005)
+                  & (height <= peg_h + PRE_INSERT_HEIGHT) & (axis_cos > np.cos(np.deg2rad(INSERT_TILT_DEG))))
+        inserted = ((radial < self.gear_spec.hole_radius + 0.0015) & (height < peg_h - 0.003) & (height > -0.005)
+                    & (axis_cos > np.cos(np.deg2rad(INSERT_TILT_DEG))))
         success = inserted & aligned & (height < SEATED_TOL)
         stage = torch.where(success, 3, torch.where(at_peg | inserted, 2, torch.where(lifted, 1, 0)))
         return dict(success=success, gear_grasped=grasped, gear_lifted=lifted, gear_at_peg=at_peg,

@@ -81,6 +81,23 @@ def test_evaluate_reports_the_subtask_flags_and_stage(state_env):
     assert int(info["stage"][0]) == 0 and not bool(info["success"][0])
 
 
+@pytest.mark.parametrize("tilt_deg, inserted", [(0, True), (10, True), (40, False), (80, False)])
+def test_a_gear_turned_on_its_edge_on_the_peg_is_not_inserted(state_env, tilt_deg, inserted):
+    """Half-way down the peg, a gear counts as inserted only with its axis along the peg's: one caught on the peg
+    turned on its edge has not gone down it (and a release guard must not let it go there)."""
+    from mani_skill.utils.structs.pose import Pose
+    from transforms3d.euler import euler2quat
+
+    state_env.reset(seed=0)
+    u = state_env.unwrapped
+    in_peg = Pose.create_from_pq(p=[0.002, 0.0, u.gear_spec.peg_height / 2],
+                                 q=euler2quat(np.deg2rad(tilt_deg), 0, 0))
+    u.gear.set_pose(u.peg_module.pose * in_peg)
+    info = u.evaluate()
+    assert bool(info["gear_inserted"][0]) is inserted and int(info["stage"][0]) == (2 if inserted else 0)
+    assert not bool(info["success"][0])
+
+
 @pytest.mark.parametrize("kwargs, message", [
     (dict(cameras=("head", "wrist")), "valid cameras are"),
     (dict(camera_width=0), "positive integer"),
