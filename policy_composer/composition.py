@@ -61,7 +61,6 @@ def compose_library(models: str | Path, sources, config: ComposeConfig, seeds: l
     from policy_composer.selector.world_model import GearWorldModel
     from policy_composer.tasks.rollout import make_env
 
-    check_out(Path(out), resume)  # before any work: a finished run in `out` is never overwritten
     torch.set_num_threads(1)
     world = GearWorldModel.load(models)
     names = list(world.dynamics)
@@ -69,7 +68,7 @@ def compose_library(models: str | Path, sources, config: ComposeConfig, seeds: l
     world.check_controllers(ids)
     settings = {"models": str(Path(models).resolve()), "controller_models": ids, "config": asdict(config),
                 "resolution": resolution, "clearance_mm": clearance_mm, "knock_out_step": knock_out_step}
-    check_out(Path(out), resume, settings)
+    check_out(Path(out), resume, settings)  # before the env: a finished run in `out` is never overwritten
     cameras = tuple(dict.fromkeys((world.camera, *cameras_needed(names, sources))))
     env = make_env("rgb", resolution, clearance_mm, cameras, knock_out_step=knock_out_step)
     try:
@@ -135,6 +134,7 @@ def check_out(out: Path, resume: bool, settings: dict | None = None) -> None:
 def load_episodes(out: Path) -> list[ComposedEpisode]:
     """The episodes a composed run wrote to `out`/episodes.jsonl (none if it has not written any)."""
     from policy_composer.selector.compose import ComposedEpisode
+
     path = out / "episodes.jsonl"
     if not path.exists():
         return []

@@ -45,6 +45,9 @@ def dataset_features(cameras: tuple[str, ...] = CAMERA_NAMES, resolution: int = 
     return features
 
 
+REPAIR = "record the dataset again (or restore the file from a copy)"
+
+
 class DatasetError(ValueError):
     """A dataset that is missing, not a LeRobot dataset, or lacks what its consumer needs."""
 
@@ -59,7 +62,7 @@ def read_info(root: str | Path) -> dict:
     if not info_path.is_file():
         raise DatasetError(f"{root} is not a LeRobot dataset: it has no meta/info.json "
                            f"(expected a LeRobotDataset {FORMAT_VERSION} folder, as `policy-composer record` writes)")
-    info = read_json(info_path, "re-record the dataset (or restore the file from a copy)")
+    info = read_json(info_path, REPAIR)
     if info.get("codebase_version") != FORMAT_VERSION:
         raise DatasetError(f"{root} is a LeRobot dataset of format {info.get('codebase_version')}; this project reads "
                            f"{FORMAT_VERSION} (lerobot {LEROBOT_VERSION}); convert it with lerobot's v30 conversion "
@@ -70,7 +73,7 @@ def read_info(root: str | Path) -> dict:
 def read_sidecar(root: str | Path) -> dict:
     """The project's metadata of a dataset it recorded ({} if there is none)."""
     path = Path(root) / SIDECAR
-    return read_json(path, "re-record the dataset (or restore the file from a copy)") if path.is_file() else {}
+    return read_json(path, REPAIR) if path.is_file() else {}
 
 
 def read_json(path: Path, fix: str) -> dict:
@@ -111,13 +114,12 @@ def check_files(root: Path, info: dict) -> None:
         try:
             pq.read_metadata(path)
         except (OSError, ValueError) as e:
-            raise DatasetError(f"{path} is not a readable parquet file ({e}); record the dataset again "
-                               "(or restore the file from a copy)") from None
+            raise DatasetError(f"{path} is not a readable parquet file ({e}); {REPAIR}") from None
     missing = missing_videos(root, info)
     if missing:
         shown = ", ".join(missing[:3]) + (", ..." if len(missing) > 3 else "")
-        raise DatasetError(f"{root} is missing {len(missing)} video file(s) its episodes point to ({shown}): "
-                           "restore them, or record the dataset again")
+        raise DatasetError(f"{root} is missing {len(missing)} video file(s) its episodes point to ({shown}); "
+                           f"{REPAIR}")
 
 
 def missing_videos(root: Path, info: dict) -> list[str]:
