@@ -395,7 +395,8 @@ def build_parser() -> argparse.ArgumentParser:
     compose.add_argument("--models", default=WORLD, help="world-model folder (train world-model, goal-score)")
     model_options(compose)
     add_config_options(compose, ComposeConfig, {"horizon": "horizon", "samples": "samples",
-                                                "reselect_every": "reselect-every", "max_failures": "max-failures"})
+                                                "reselect_every": "reselect-every", "max_failures": "max-failures",
+                                                "episode_failures": "episode-failures"})
     compose.add_argument("--knock-out-step", type=at_least(0), default=None,
                          help="perturbation: knock the gear out of the gripper at this control step "
                               "(or when next lifted)")

@@ -3,8 +3,8 @@
 At each decision it scores every controller whose initiation set holds the current state, runs the best one,
 and decides again when it terminates (succeeded, failed, or stopped for safety) and, optionally, every
 `reselect_every` control steps. `Eligibility` leaves out a controller that has just succeeded and one that has
-failed `max_failures` times since the last success. The episode ends when no controller may start (the task is
-done, or nothing applies) or at `max_steps`.
+failed `max_failures` times since the last success or `episode_failures` times in the episode. The episode ends
+when no controller may start (the task is done, or nothing applies) or at `max_steps`.
 """
 
 from __future__ import annotations
@@ -60,13 +60,16 @@ class Eligibility:
     only repeat itself. A controller that has failed `max_failures` times (default once) since the last success is
     dropped until another controller succeeds: its dynamics model keeps predicting a success the world does not
     give, and a failed insertion backs off to the state it started from, where the same open-loop controller would
-    fail the same way; without this the selector retries it until the episode runs out.
+    fail the same way; without this the selector retries it until the episode runs out. A success that only
+    brings the gear back to where it failed (a move after a failed insertion) would let it fail again and again,
+    so `episode_failures` failures in the episode drop it for good.
     """
 
-    def __init__(self, max_failures: int):
-        self.max_failures = max_failures
+    def __init__(self, max_failures: int, episode_failures: int | None = None):
+        self.max_failures, self.episode_failures = max_failures, episode_failures
         self.just_done: str | None = None
-        self.failures: Counter[str] = Counter()
+        self.failures: Counter[str] = Counter()  # since the last success
+        self.all_failures: Counter[str] = Counter()  # in the episode
 
     def record(self, activation: Activation) -> None:
         self.just_done = activation.controller if activation.outcome == "done" else None
@@ -74,9 +77,11 @@ class Eligibility:
             self.failures.clear()
         elif activation.outcome != "preempted":
             self.failures[activation.controller] += 1
+            self.all_failures[activation.controller] += 1
 
     def allows(self, name: str) -> bool:
-        return name != self.just_done and self.failures[name] < self.max_failures
+        return (name != self.just_done and self.failures[name] < self.max_failures
+                and (self.episode_failures is None or self.all_failures[name] < self.episode_failures))
 
 
 FrameHook = Callable[[dict, str, float], None]  # (observation, running controller, goal score now)
@@ -95,7 +100,7 @@ def compose_episode(env, library: dict[str, Controller], world: GearWorldModel, 
     result = ComposedEpisode(seed)
     running: Controller | None = None
     current: Activation | None = None
-    eligibility = Eligibility(config.max_failures)
+    eligibility = Eligibility(config.max_failures, config.episode_failures)
 
     def choose(step: int) -> Controller | None:
         """Decide and start the chosen controller; one that cannot even start (no plan) fails on the spot."""

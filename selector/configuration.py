@@ -78,6 +78,8 @@ class ComposeConfig:
     max_steps: int = 900  # control steps per episode
     max_failures: int = option(1, "a controller that failed this often since the last success is not chosen again",
                                minimum=1)
+    episode_failures: int = option(2, "a controller that failed this often in the episode is not chosen again",
+                                   minimum=1)
 
     def __post_init__(self):
         check_options(self)

@@ -145,6 +145,17 @@ def test_a_failing_controller_is_dropped_until_another_succeeds():
     assert eligibility.allows("dmp_move") and not eligibility.allows("mp_move")
 
 
+def test_an_insertion_that_keeps_failing_is_dropped_for_the_episode():
+    """Quick main job, seeds 4-7: cnn_insert left the gear unseated, mp_move brought it back to the pre-insertion
+    pose, and the selector chose cnn_insert again, six times, until max_steps; the other insertions never ran."""
+    eligibility = Eligibility(max_failures=1, episode_failures=2)
+    for step in (0, 100):
+        assert eligibility.allows("cnn_insert")
+        eligibility.record(Activation("cnn_insert", step, outcome="failed"))
+        eligibility.record(Activation("mp_move", step + 50, outcome="done"))
+    assert not eligibility.allows("cnn_insert") and eligibility.allows("mp_insert") and eligibility.allows("dmp_pick")
+
+
 def test_the_summary_counts_back_offs_and_what_came_of_them():
     backed = "backed off: the gear did not go down the peg"
     episodes = [ComposedEpisode(0, True, 300, activations=[Activation("mp_insert", 0, 90, "failed", backed),
