@@ -61,6 +61,7 @@ def compose_library(models: str | Path, sources, config: ComposeConfig, seeds: l
     from policy_composer.selector.world_model import GearWorldModel
     from policy_composer.tasks.rollout import make_env
 
+    check_out(Path(out), resume)  # first: a finished run in `out` is refused before anything loads
     torch.set_num_threads(1)
     world = GearWorldModel.load(models)
     names = list(world.dynamics)
@@ -68,7 +69,7 @@ def compose_library(models: str | Path, sources, config: ComposeConfig, seeds: l
     world.check_controllers(ids)
     settings = {"models": str(Path(models).resolve()), "controller_models": ids, "config": asdict(config),
                 "resolution": resolution, "clearance_mm": clearance_mm, "knock_out_step": knock_out_step}
-    check_out(Path(out), resume, settings)  # before the env: a finished run in `out` is never overwritten
+    check_out(Path(out), resume, settings)  # and a resumed one continues with its own settings
     cameras = tuple(dict.fromkeys((world.camera, *cameras_needed(names, sources))))
     env = make_env("rgb", resolution, clearance_mm, cameras, knock_out_step=knock_out_step)
     try:
