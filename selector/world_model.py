@@ -20,15 +20,12 @@ from policy_composer.selector.goal_score import GoalScoreModel, load_goal_score
 from policy_composer.selector.vae import VAE, load_vae
 
 
-def check_trained_together(vae: Path, parts: list[Path]) -> None:
-    """Refuse dynamics models and goal scores trained with another VAE than `vae` (a retraining cut short, or
-    folders mixed by hand): their latents or reconstructions would not be this VAE's."""
+def check_trained_together(vae: Path, made_with: dict[Path, dict[str, str]]) -> None:
+    """Refuse dynamics models and goal scores (each part's `trained_with`) trained with another VAE than `vae` (a
+    retraining cut short, or folders mixed by hand): their latents or reconstructions would not be this VAE's."""
     vae_id = weights_id(vae)
-    for part in parts:
-        if not (part / "config.json").is_file():
-            continue  # missing: its loader says how to train it
-        made_with = trained_with(part, "world-model part", "policy-composer train world-model").get("vae")
-        if made_with is not None and made_with != vae_id:
+    for part, parts in made_with.items():
+        if parts.get("vae", vae_id) != vae_id:
             raise CheckpointError(f"{part} was trained with another VAE than the one in {vae}; train the world model "
                                   f"again as one: `policy-composer train world-model`, then `train goal-score`")
 
@@ -65,10 +62,13 @@ class GearWorldModel:
                                   f"(it has {available}); "
                                   f"record their rollouts and train them with `policy-composer train world-model`")
         goal = root / "goal_score" / vae.config.camera
-        check_trained_together(root / "vae", [folder / n for n in names] + [goal])
+        made_with = {folder / n: trained_with(folder / n, "dynamics model", "policy-composer train world-model")
+                     for n in names}
+        if (goal / "config.json").is_file():  # missing: load_goal_score says how to train it
+            made_with[goal] = trained_with(goal, "goal score", "policy-composer train goal-score")
+        check_trained_together(root / "vae", made_with)
         dynamics = {n: load_dynamics(folder / n, vae.config.latent_dim) for n in names}
-        models = {n: trained_with(folder / n, "dynamics model", "policy-composer train world-model").get("controller")
-                  for n in names}
+        models = {n: made_with[folder / n].get("controller") for n in names}
         return cls(vae, dynamics, load_goal_score(goal), {n: m for n, m in models.items() if m})
 
     def check_controllers(self, models: dict[str, str]) -> None:
