@@ -1,10 +1,10 @@
 """The per-controller table (paper Table I, rows MP, DMP, CNN): each controller kind on each subtask from that
 subtask's standard start states, and on the full task with its three controllers in the fixed order.
 
-Standard start states come from the scripted expert in its open-loop mode (which carries as if the grasp were
-centred, as a planner would), stopped where the subtask begins: pick from the episode's start; move with the
-gear grasped (off-centre by up to 12 mm) and lifted; insert with the hand at the pre-insertion pose above the
-peg, the gear off-centre by its grasp offset.
+Standard start states: pick from the episode's start; move with the gear grasped (off-centre by up to 12 mm) and
+lifted, where the scripted expert in its open-loop mode (which carries as if the grasp were centred, as a planner
+would) stops; insert from the task's own pre_insertion start (the hand at the pre-insertion pose above the peg, off
+by a rough carry's error, the gear off-centre along the fingers by up to 12 mm).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from policy_composer.data import atomic
 from policy_composer.policies.arm import Outcome, run_activation
 
 SUBTASK_COLUMNS = ("pick", "move", "insert", "full")
-START_PHASE = {"move": "carry", "insert": "insert"}  # the expert phase at which a subtask's start state is taken
+START_PHASE = {"move": "carry"}  # the expert phase at which a subtask's start state is taken
 PAPER = {  # paper Table I; "*": stopped for safety; "-": not run
     "MP": {"pick": "10/10", "move": "10/10", "insert": "1/10", "full": "1/10"},
     "DMP": {"pick": "10/10", "move": "10/10", "insert": "1/10", "full": "1/10"},
@@ -40,17 +40,21 @@ class Cell:
 
 
 def start_state(env, seed: int, subtask: str, max_steps: int = 300):
-    """Reset to `seed` and run the open-loop expert up to where `subtask` starts; returns the observation.
+    """Reset to `seed` and bring the env to where `subtask` starts (see the module's docstring); returns the
+    observation.
 
-    The expert's state there may still fall outside the subtask's initiation set (a gear tilted in the grasp);
-    such a seed is replaced by seed + 1000 (up to five times), so every trial starts where the subtask may."""
+    That state may still fall outside the subtask's initiation set (a gear tilted in the grasp, or too far off the
+    peg); such a seed is replaced by seed + 1000 (up to five times), so every trial starts where the subtask may."""
     from policy_composer.policies.arm import SceneGeometry
     from policy_composer.policies.subtasks import SUBTASKS
 
     if subtask in ("pick", "full"):
         return env.reset(seed=seed)[0]
     for k in range(5):
-        obs = _expert_until(env, seed + 1000 * k, subtask, max_steps)
+        if subtask == "insert":
+            obs = env.reset(seed=seed + 1000 * k, options={"start": "pre_insertion"})[0]
+        else:
+            obs = _expert_until(env, seed + 1000 * k, subtask, max_steps)
         if obs is not None and SUBTASKS[subtask].can_start(SceneGeometry(env)):
             return obs
     raise RuntimeError(f"no valid {subtask} start state from seed {seed} (tried five)")

@@ -114,7 +114,8 @@ def _record_expert(recipe: Recipe, recorder, target: int, seed: int, bar) -> Non
         if attempts > 3 * target + 5:
             raise RuntimeError(f"{recipe.name}: too few episodes succeed ({recorder.num_episodes} kept after "
                                f"{attempts - 1} attempts); check the env settings")
-        obs, _ = recorder.reset(seed=seed)
+        obs, _ = recorder.reset(seed=seed, options={"start": recipe.start,
+                                                    "grasp_offset_max": recipe.expert.grasp_offset_mm / 1000.0})
         expert.reset(seed)
         recorder.controller = expert.name
         info = None

@@ -34,7 +34,8 @@ from transforms3d.euler import euler2quat
 
 from policy_composer.tasks import panda_light  # noqa: F401  (registers the "panda_light" agent)
 from policy_composer.tasks.gear_geometry import GearSpec, build_gear, build_peg_module
-from policy_composer.tasks.spec import ACTION_NAMES, ARM_JOINTS, CAMERA_NAMES, STATE_NAMES  # noqa: F401  (re-exported)
+from policy_composer.tasks.gear_kinematics import LeftArmIK, plate_direction
+from policy_composer.tasks.spec import ACTION_NAMES, ARM_JOINTS, CAMERA_NAMES, START_STATES, STATE_NAMES  # noqa: F401
 
 SUPPORTED_ROBOTS = (("panda_light", "panda_light"), ("panda", "panda"))
 SUPPORTED_CONTROL_MODES = ("pd_joint_pos", "pd_joint_delta_pos")
@@ -54,8 +55,8 @@ FOREARM_VIEWS = {"left": ([-0.08, 0.06, 0.08], [0.0, 0.0, 0.15]), "right": ([0.1
 # Bump when a change alters what the task simulates or renders: the main job's recording stages key on it, so
 # recordings made before the change are not reused after it.
 # 2: the right forearm camera sees the peg; 3: the scene is rebuilt at every reset; 4: a gear tilted on the peg is
-# not inserted
-TASK_REVISION = 4
+# not inserted; 5: the pre_insertion start (Table I's insert column and the insertion controllers' rollouts start there)
+TASK_REVISION = 5
 GEAR_XY_CENTER = (0.0, -0.30)
 GEAR_XY_RANGE = (0.10, 0.06)  # half-ranges of the gear's uniform position on the table
 PLATE_GRIP = 0.024  # right finger position holding the plate
@@ -66,6 +67,13 @@ LIFT_HEIGHT = 0.03
 GRASP_DISTANCE = 0.05  # gear origin to the left TCP while grasped (m)
 PRE_INSERT_RADIUS = 0.015
 PRE_INSERT_HEIGHT = 0.06
+# reset(options={"start": "pre_insertion"}): the episode starts with the gear already in the left gripper above the
+# peg, where the insertion begins (Table I's insert column; the insertion demonstrations), instead of on the table.
+GRASP_OFFSET_MAX = 0.012  # gear centre off the fingers' centre, along the fingers, up to this (m)
+ARRIVAL_ERROR_MAX = (0.004, 0.010)  # a rough carry leaves the hand off the pre-insertion pose by up to (xy, +z) (m)
+CARRY_CLEARANCE = 0.03  # gear bottom above the peg top at the pre-insertion pose (m)
+CLOSE_STEPS = 6  # control steps the gripper takes to close on the gear (held still meanwhile)
+SETTLE_STEPS = 4  # then the grasp alone holds it
 
 
 @register_env("GearAssembly-v1", max_episode_steps=400)
@@ -110,6 +118,8 @@ class GearAssemblyEnv(BaseEnv):
         # out onto the table (to test that a composition recovers). None: never.
         self.knock_out_step = knock_out_step
         self.knocked_out = False
+        self.start = "table"
+        self.grasp_offset = 0.0  # at a pre-insertion start: where the gear sits along the fingers (m)
         # Without CUDA, render on the CPU (lavapipe) directly instead of warning and falling back.
         kwargs.setdefault("render_backend", "gpu" if torch.cuda.is_available() else "cpu")
         # Rebuild the scene at every reset (about 0.4 s on the CPU): PhysX keeps contact state across set_pose, so
@@ -182,6 +192,65 @@ class GearAssemblyEnv(BaseEnv):
             self._refresh_kinematics()
             self._attach_peg_module()
             self._control_steps, self.knocked_out = 0, False
+
+    def reset(self, seed=None, options: dict | None = None):
+        """ManiSkill's reset; with options={"start": "pre_insertion"} the gear starts in the left gripper above the
+        peg, off-centre along the fingers by up to GRASP_OFFSET_MAX (or options["grasp_offset_max"])."""
+        options = dict(options or {})
+        start = options.pop("start", "table")
+        offset_max = float(options.pop("grasp_offset_max", GRASP_OFFSET_MAX))
+        if start not in START_STATES:
+            raise ValueError(f"unknown start state {start!r}: choose one of {list(START_STATES)}")
+        if self.num_envs != 1 and start != "table":
+            raise ValueError(f"start={start!r} places one env's gear; got num_envs={self.num_envs}")
+        obs, info = super().reset(seed=seed, options=options)
+        self.start, self.grasp_offset = start, 0.0
+        if start == "pre_insertion":
+            obs, info = self._start_at_pre_insertion(offset_max)
+        return obs, info
+
+    def _start_at_pre_insertion(self, offset_max: float):
+        """Put the hand at the pre-insertion pose (off by a rough carry's error) with the gear between its open
+        fingers, held still while they close on it, then let physics hold it: what the pick-up and carry leave,
+        without simulating them."""
+        rng = self._episode_rng
+        self.grasp_offset = float(rng.uniform(-offset_max, offset_max))
+        xy_error, z_error = ARRIVAL_ERROR_MAX
+        arrival = np.append(rng.uniform(-xy_error, xy_error, 2), rng.uniform(0.0, z_error))
+        yaw = float(rng.uniform(0, 2 * np.pi))
+        spec = self.gear_spec
+        grasp_height = spec.ring_thickness + 0.7 * spec.top_thickness  # TCP above the gear's bottom
+        x = plate_direction(self)
+        x[2] = 0.0
+        x /= np.linalg.norm(x)
+        tcp = self.peg_top.p[0].cpu().numpy() + [0.0, 0.0, CARRY_CLEARANCE + grasp_height] + arrival
+        solution = LeftArmIK(self).solve_hand_down(tcp, x, LEFT_START_QPOS)
+        if solution is None:
+            raise RuntimeError("the pre-insertion pose is out of the left arm's reach for this seed")
+        quat, q = solution
+        q = np.concatenate([q[:7], [0.04, 0.04]])
+        left = self.left_arm
+        left.robot.set_qpos(torch.as_tensor(q, dtype=torch.float32)[None])
+        left.robot.set_qvel(torch.zeros((1, 9)))
+        gear_p = tcp - [0.0, 0.0, grasp_height] - x * self.grasp_offset
+        self.gear.set_pose(Pose.create_from_pq(p=torch.as_tensor(gear_p, dtype=torch.float32)[None],
+                                               q=torch.as_tensor(euler2quat(0, 0, yaw), dtype=torch.float32)[None]))
+        body = self.gear._bodies[0]
+        body.kinematic = True
+        for controller in self.agent.controller.values():  # drive targets from the new joint angles
+            controller.reset()
+        action = self.hold_action()[0]
+        action[:7] = torch.as_tensor(q[:7])
+        action[7] = -1.0  # close
+        action = self.flat_to_dict_action(action[None])
+        for i in range(CLOSE_STEPS + SETTLE_STEPS):  # physics only: nothing renders until the episode begins
+            body.kinematic = i < CLOSE_STEPS
+            self._step_action(action)
+        self._control_steps = 0
+        info = self.get_info()
+        obs = self.get_obs(info)
+        self._last_obs = obs
+        return obs, info
 
     def knock_gear_out(self) -> None:
         """Knock the gear out of the gripper: it lands flat somewhere else on the table, at rest."""

@@ -106,6 +106,9 @@ class GearAssemblyExpert:
         # controllers choose).
         solution = self._ik.solve_hand_down(self._grasp_p + [0, 0, 0.08], x, self._q_seed)
         self._cmd_q = solution[0] if solution is not None else hand_down_quat(x)
+        if env.start == "pre_insertion":  # the env put the gear in the hand: the insertion begins here
+            self.grasp_offset, self.phase, self._gripper = env.grasp_offset, "insert", GRIPPER_CLOSED
+            self._cmd_q = self._np(env.left_arm.tcp.pose.q)
         self._hold = self._np(env.hold_action())
         if cfg.teleop:
             self._arrival = np.append(rng.uniform(-cfg.arrival_error, cfg.arrival_error, 2), rng.uniform(0.0, 0.01))

@@ -20,6 +20,10 @@ ACTION_NAMES = tuple(
 )
 
 
+# Where an episode starts (reset option "start"): the gear on the table, or already in the left gripper above the
+# peg where the insertion begins.
+START_STATES = ("table", "pre_insertion")
+
 # What the task can be made with: the radial clearance the gear's hole leaves around the peg (below 0.5 mm the
 # gear jams, above 6 mm it tips over the peg), and square camera images.
 CLEARANCE_MM = (0.5, 6.0)

@@ -98,6 +98,40 @@ def test_a_gear_turned_on_its_edge_on_the_peg_is_not_inserted(state_env, tilt_de
     assert not bool(info["success"][0])
 
 
+def test_the_pre_insertion_start_holds_the_gear_above_the_peg_off_centre(state_env):
+    """reset(options={"start": "pre_insertion"}) gives the insertion's start state without the pick-up: the gear
+    held (not resting on anything), its centre off the fingers' centre by the drawn grasp offset, the hand above the
+    peg; the same seed gives the same state, and the expert inserts from there."""
+    from policy_composer.tasks.gear_expert import GearAssemblyExpert
+
+    u = state_env.unwrapped
+    offsets, at_peg = [], 0
+    for seed in range(4, 8):
+        _, info = state_env.reset(seed=seed, options={"start": "pre_insertion"})
+        first = torch.cat([u.gear.pose.raw_pose, u.joint_state()], -1)
+        assert bool(info["gear_grasped"][0]) and bool(info["gear_lifted"][0]) and int(u.elapsed_steps[0]) == 0
+        at_peg += bool(info["gear_at_peg"][0])
+        rel = (u.left_arm.tcp.pose.inv() * u.gear.pose).p[0]  # gear in the hand's frame (x along the fingers)
+        assert abs(u.grasp_offset) <= 0.012 and abs(abs(float(rel[0])) - abs(u.grasp_offset)) < 0.003
+        offsets.append(u.grasp_offset)
+        state_env.reset(seed=seed, options={"start": "pre_insertion"})
+        assert torch.equal(torch.cat([u.gear.pose.raw_pose, u.joint_state()], -1), first)
+    assert at_peg >= 3 and np.ptp(offsets) > 0.01  # offsets differ per seed
+    obs, _ = state_env.reset(seed=5, options={"start": "pre_insertion"})
+    expert = GearAssemblyExpert(state_env)
+    expert.reset(5)
+    assert expert.phase == "insert"
+    for _ in range(100):
+        obs, _, _, _, info = state_env.step(u.flat_to_dict_action(expert.act(obs)))
+        if expert.done:
+            break
+    assert bool(info["success"][0])
+    with pytest.raises(ValueError, match="choose one of"):
+        state_env.reset(seed=0, options={"start": "above_peg"})
+    state_env.reset(seed=0)
+    assert u.start == "table" and int(u.evaluate()["stage"][0]) == 0
+
+
 @pytest.mark.parametrize("kwargs, message", [
     (dict(cameras=("head", "wrist")), "valid cameras are"),
     (dict(camera_width=0), "positive integer"),

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from policy_composer.data.features import read_info, read_sidecar
-from policy_composer.tasks.spec import CAMERA_NAMES
+from policy_composer.tasks.spec import CAMERA_NAMES, START_STATES
 
 RECIPE_DIR = Path(__file__).resolve().parents[2] / "datasets" / "recipes"
 DRIVERS = ("expert", "controllers")
@@ -32,6 +32,7 @@ class Recipe:
     episodes: int  # default number of episodes (per controller for the "controllers" driver)
     driver: str  # "expert": the scripted expert; "controllers": each controller of the library
     record_phases: tuple[str, ...] = ()  # expert phases to record; empty: the whole episode
+    start: str = "table"  # "expert" driver: where episodes start (GearAssembly-v1's START_STATES)
     keep: str = "success"  # "success": failed episodes are dropped and another seed is tried; "all"
     train_episodes: int | None = None  # episodes [0, train_episodes) train, the rest are held out
     controllers: tuple[str, ...] = ()  # "controllers" driver: which to run (empty: every registered controller)
@@ -44,6 +45,8 @@ class Recipe:
         if set(self.cameras) - set(CAMERA_NAMES) or not self.cameras:
             raise RecipeError(f"recipe {self.name}: cameras {list(self.cameras)} must be a non-empty subset of "
                               f"{list(CAMERA_NAMES)}")
+        if self.start not in START_STATES:
+            raise RecipeError(f"recipe {self.name}: start must be one of {list(START_STATES)}, not {self.start!r}")
         if self.keep not in ("success", "all"):
             raise RecipeError(f"recipe {self.name}: keep must be 'success' or 'all', not {self.keep!r}")
 
