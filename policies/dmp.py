@@ -24,7 +24,7 @@ from policy_composer.learning.checkpoint import CheckpointError
 from policy_composer.policies.arm import Outcome, Segment, run_activation
 from policy_composer.policies.configuration_dmp import DMPConfig
 from policy_composer.policies.planning import VELOCITY_LIMIT, time_parameterize
-from policy_composer.policies.subtasks import SUBTASKS, SubtaskController, Waypoint
+from policy_composer.policies.subtasks import SUBTASKS, TASK_SEQUENCE, SubtaskController, Waypoint
 
 MIN_DEMO_STEPS = 5  # shorter movements (a few mm of alignment) are not worth a DMP: they go straight in joint space
 
@@ -141,11 +141,11 @@ def fit_dmp_library(env, seeds: list[int], config: DMPConfig | None = None, prog
     from policy_composer.policies.motion_planning import MotionPlanningController
 
     config = config or DMPConfig(dt=1.0 / float(env.unwrapped.control_freq))
-    demos: dict[str, list[list[np.ndarray | None]]] = {n: [] for n in SUBTASKS}
+    demos: dict[str, list[list[np.ndarray | None]]] = {n: [] for n in TASK_SEQUENCE}
     for seed in tqdm(seeds, desc="planner demonstrations for the DMPs", unit="episode", disable=not progress):
         obs, _ = env.reset(seed=seed)
-        for name, subtask in SUBTASKS.items():
-            mp = MotionPlanningController(env, subtask, grasp_offset=0.0)
+        for name in TASK_SEQUENCE:
+            mp = MotionPlanningController(env, SUBTASKS[name], grasp_offset=0.0)
             if not mp.can_start(obs):
                 break
             start = mp.q9(obs)[:7]

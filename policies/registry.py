@@ -94,7 +94,7 @@ def kind_of(controller: str) -> ControllerKind | None:
 
 
 _P = "policy_composer.policies"
-register_kind(ControllerKind("mp", "MP", ("pick", "move", "insert"), build=f"{_P}.motion_planning:build"))
+register_kind(ControllerKind("mp", "MP", ("pick", "move", "insert", "regrasp"), build=f"{_P}.motion_planning:build"))
 register_kind(ControllerKind("dmp", "DMP", ("pick", "move", "insert"), build=f"{_P}.dmp:build",
                              load=f"{_P}.dmp:DMPLibrary.load", model_path="results/models/dmp",
                              train_command="policy-composer train dmp"))

@@ -1,9 +1,13 @@
-"""The gear task's three subtasks as waypoints: what a controller must reach, independent of how it moves.
+"""The gear task's subtasks as waypoints: what a controller must reach, independent of how it moves.
 
 A subtask turns the scene into a list of waypoints (goal configurations by IK, with the gripper command and
 whether the way there is free space or a straight TCP line), an initiation set and a success test. The
 motion-planning controllers connect the waypoints with RRT-Connect and IK lines; the DMP controllers connect
 the same waypoints with movement primitives learned from the planner's trajectories.
+
+Besides the task's three (pick, move, insert), `regrasp` puts the gear down on the table, as the paper's PR2 used the
+table to re-grasp it: a gear shifted in the hand, which no insertion seats, becomes one lying on the table, which a
+pick-up grasps afresh.
 """
 
 from __future__ import annotations
@@ -30,6 +34,9 @@ from policy_composer.tasks.gear_kinematics import LeftArmIK
 PRE_GRASP_HEIGHT = 0.08  # TCP above the grasp point before descending (m)
 LIFT_HEIGHT = 0.12  # how far the pick-up lifts the gear (m)
 RETREAT_HEIGHT = 0.10
+PLACE_XY = (0.0, -0.30)  # where the re-grasp puts the gear down: the middle of the gear's start area on the table
+PLACE_DROP = 0.005  # the gear's bottom above the table when the re-grasp lets go (m)
+CLEAR_HEIGHT = 0.05  # the re-grasp first lifts the gear straight up this far, clear of the peg (m)
 # A learned controller's steps are limited to this fraction of the joint velocity limits (see limit_step).
 STEP_SPEED_MARGIN = 0.9
 
@@ -175,7 +182,33 @@ class Insert(Subtask):
         return np.concatenate([up, across, across[-1:].repeat(4, axis=0)])  # and settle there
 
 
-SUBTASKS = {s.name: s for s in (Pick(), Move(), Insert())}
+class Regrasp(Subtask):
+    """Up, clear of the peg; over to the table; down; let go; up. The gear then lies flat where a pick-up finds it."""
+
+    name = "regrasp"
+    initiation = "gear grasped and lifted off the table, not on the peg"
+    holds_gear = True
+
+    def can_start(self, scene):
+        info = scene.info()
+        return info["gear_lifted"] and not info["gear_inserted"]
+
+    def waypoints(self, ik, scene, q_now, grasp_offset):
+        tcp, quat = scene.tcp(), np0(ik.arm.tcp.pose.q)
+        clear = line_to(ik, q_now, tcp + [0, 0, CLEAR_HEIGHT], quat, GRIPPER_CLOSED, step=0.006, settle=0)
+        place = np.array([*PLACE_XY, scene.grasp_height + PLACE_DROP])
+        quat, q_above = ik_hand_down(ik, scene, place + [0, 0, PRE_GRASP_HEIGHT], clear.q)
+        down = line_to(ik, q_above, place, quat, GRIPPER_CLOSED, step=0.004)
+        up = line_to(ik, down.q, place + [0, 0, RETREAT_HEIGHT], quat, GRIPPER_OPEN, step=0.006)
+        return [clear, Waypoint("free", q_above, GRIPPER_CLOSED, settle=6), down,
+                Waypoint("hold", down.q, GRIPPER_OPEN, settle=8), up]
+
+    def succeeded(self, info):
+        return info["gear_on_table"], "the gear is not lying flat on the table"
+
+
+SUBTASKS = {s.name: s for s in (Pick(), Move(), Insert(), Regrasp())}
+TASK_SEQUENCE = ("pick", "move", "insert")  # the full task, when nothing goes wrong
 
 
 class SubtaskController(ScriptedController):

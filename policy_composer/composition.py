@@ -11,12 +11,14 @@ from typing import TYPE_CHECKING
 
 from policy_composer.data import atomic, interrupt
 from policy_composer.selector.configuration import ComposeConfig
+from policy_composer.stats import rate
 
 if TYPE_CHECKING:  # the simulator and torch load when a run starts, not when the command line starts
     from policy_composer.selector.compose import ComposedEpisode
     from policy_composer.selector.world_model import GearWorldModel
 
 PAPER_COMPOSED = "10/10"  # paper Table I: MP + CNN composed by the selector, full task
+MILESTONES = ("picked", "at the pre-insertion pose", "seated")  # the full task's subtasks done, in order
 
 
 class RunError(ValueError):
@@ -168,16 +170,48 @@ def back_offs(episodes: list[ComposedEpisode]) -> str:
             f"{sum(e.success for e in backed)}/{len(backed)}.")
 
 
+def progressive(completed: list[int]) -> str:
+    """Progressive completion: how many trials got at least as far as each milestone (`completed`: per trial, the
+    number of milestones reached)."""
+    n = len(completed)
+    return " · ".join(f"{m} {sum(c > i for c in completed)}/{n}" for i, m in enumerate(MILESTONES))
+
+
+def failure_causes(episodes: list[ComposedEpisode]) -> list[tuple[tuple[str, str, str], list[int]]]:
+    """The failed episodes grouped by cause: (the last activation and why it ended, how the episode ended, where the
+    gear was), with their seeds, commonest first."""
+    causes: dict[tuple[str, str, str], list[int]] = {}
+    for e in episodes:
+        if e.success:
+            continue
+        last = e.activations[-1] if e.activations else None
+        why = last.reason.split(":")[0].split(" (")[0].strip() if last else ""
+        what = f"{last.controller} {last.outcome}" + (f": {why}" if why else "") if last else "no controller started"
+        causes.setdefault((what, e.ended or "-", e.gear or "-"), []).append(e.seed)
+    return sorted(causes.items(), key=lambda c: -len(c[1]))
+
+
+def failure_table(episodes: list[ComposedEpisode]) -> list[str]:
+    """`failure_causes` as the lines of a markdown table (none if every episode succeeded)."""
+    causes = failure_causes(episodes)
+    if not causes:
+        return []
+    return ["| last activation | episode ended | gear at the end | episodes | seeds |", "|---|---|---|---|---|"] + [
+        f"| {what} | {ended} | {gear} | {len(seeds)} | {', '.join(map(str, seeds))} |"
+        for (what, ended, gear), seeds in causes]
+
+
 def summary(episodes: list[ComposedEpisode], config: ComposeConfig) -> str:
     n, ok = len(episodes), sum(e.success for e in episodes)
     lines = ["# Composed controllers (the selector over the whole library)", "",
              f"Horizon n = {config.horizon}, K = {config.samples} samples per controller, decisions at termination"
              + (f" and every {config.reselect_every} steps" if config.reselect_every else "") + ".", "",
-             "| | full task | paper |", "|---|---|---|", f"| composed | {ok}/{n} | {PAPER_COMPOSED} |", ""]
+             "| | full task | progressive completion | paper |", "|---|---|---|---|",
+             f"| composed | {rate(ok, n)} | {progressive([e.reached for e in episodes])} | {PAPER_COMPOSED} |", ""]
     knocked = [e for e in episodes if e.knocked_out]
     if knocked:
         lines += [f"Gear knocked out of the gripper in {len(knocked)} episodes; recovered (task still done) in "
-                  f"{sum(e.success for e in knocked)}/{len(knocked)}.", ""]
+                  f"{rate(sum(e.success for e in knocked), len(knocked))}.", ""]
     backed = back_offs(episodes)
     if backed:
         lines += [backed, ""]
@@ -185,7 +219,7 @@ def summary(episodes: list[ComposedEpisode], config: ComposeConfig) -> str:
     lines += [f"| {s} | {c} |" for s, c in sequence_counts(episodes)]
     failed = [e for e in episodes if not e.success]
     if failed:
-        lines += ["", "## Failures", ""]
+        lines += ["", "## Failures by cause", "", *failure_table(episodes), "", "## Failures", ""]
         for e in failed:
             last = e.activations[-1] if e.activations else None
             why = f"{last.controller}: {last.outcome} {last.reason}".strip() if last else "no controller could start"

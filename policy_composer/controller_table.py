@@ -4,7 +4,8 @@ subtask's standard start states, and on the full task with its three controllers
 Standard start states: pick from the episode's start; move with the gear grasped (off-centre by up to 12 mm) and
 lifted, where the scripted expert in its open-loop mode (which carries as if the grasp were centred, as a planner
 would) stops; insert from the task's own pre_insertion start (the hand at the pre-insertion pose above the peg, off
-by a rough carry's error, the gear off-centre along the fingers by up to 12 mm).
+by a rough carry's error, the gear off-centre along the fingers by up to 12 mm). The re-grasp (not a column of the
+paper's table) starts where the insertion does.
 """
 
 from __future__ import annotations
@@ -16,8 +17,10 @@ from pathlib import Path
 
 from policy_composer.data import atomic
 from policy_composer.policies.arm import Outcome, run_activation
+from policy_composer.policies.subtasks import TASK_SEQUENCE
 
 SUBTASK_COLUMNS = ("pick", "move", "insert", "full")
+SEQUENCES = {"pick": ("pick",), "move": ("move",), "insert": ("insert",), "full": TASK_SEQUENCE}
 START_PHASE = {"move": "carry"}  # the expert phase at which a subtask's start state is taken
 PAPER = {  # paper Table I; "*": stopped for safety; "-": not run
     "MP": {"pick": "10/10", "move": "10/10", "insert": "1/10", "full": "1/10"},
@@ -32,6 +35,7 @@ class Cell:
     trials: int = 0
     safety_stops: int = 0
     failures: list[str] = field(default_factory=list)
+    completed: list[int] = field(default_factory=list)  # per trial: how many of its subtasks were done, in order
 
     def __str__(self) -> str:
         if self.trials == 0:
@@ -51,7 +55,7 @@ def start_state(env, seed: int, subtask: str, max_steps: int = 300):
     if subtask in ("pick", "full"):
         return env.reset(seed=seed)[0]
     for k in range(5):
-        if subtask == "insert":
+        if subtask in ("insert", "regrasp"):
             obs = env.reset(seed=seed + 1000 * k, options={"start": "pre_insertion"})[0]
         else:
             obs = _expert_until(env, seed + 1000 * k, subtask, max_steps)
@@ -82,13 +86,13 @@ def evaluate_kind(env, controllers: dict[str, object], trials: int, first_seed: 
 
     row = {c: Cell() for c in SUBTASK_COLUMNS}
     for column in SUBTASK_COLUMNS:
-        sequence = ("pick", "move", "insert") if column == "full" else (column,)
+        sequence = SEQUENCES[column]
         if not all(s in controllers for s in sequence):
             continue
         cell = row[column]
         for seed in range(first_seed, first_seed + trials):
             obs = start_state(env, seed, column)
-            outcome, why = Outcome.DONE, ""
+            outcome, why, done = Outcome.DONE, "", 0
             for s in sequence:
                 c = controllers[s]
                 try:
@@ -99,7 +103,9 @@ def evaluate_kind(env, controllers: dict[str, object], trials: int, first_seed: 
                 outcome, why = c.outcome, c.reason
                 if outcome is not Outcome.DONE:
                     break
+                done += 1
             ok = outcome is Outcome.DONE and (column != "full" or bool(env.unwrapped.evaluate()["success"][0]))
+            cell.completed.append(done if ok or done < len(sequence) else done - 1)
             cell.trials += 1
             cell.successes += ok
             cell.safety_stops += outcome is Outcome.SAFETY_STOP
@@ -126,7 +132,7 @@ def evaluate_table(kinds: list[str], sources, trials: int, first_seed: int = 0, 
         cameras = cameras_needed(names, sources)
         env = make_env("rgb" if cameras else "state_dict", resolution, clearance_mm, cameras or None)
         controllers = {c.subtask.name: c for c in build_library(env, names, sources).values()}
-        columns = len(controllers) + (len(controllers) == 3)  # the full task needs all three subtasks
+        columns = sum(all(s in controllers for s in SEQUENCES[c]) for c in SUBTASK_COLUMNS)
         with tqdm(total=columns * trials, desc=f"{kind} controllers", unit="trial", disable=not progress) as bar:
             rows[kind] = evaluate_kind(env, controllers, trials, first_seed, on_trial=bar.update)
         env.close()

@@ -221,7 +221,8 @@ def _table(out: Path, inputs: dict[str, Path], p: Profile, kinds: tuple[str, ...
     rows = evaluate_table(list(kinds), _sources(inputs), p.table_trials, 0, p.resolution)
     write_table(rows, out)
     return {"rows": {kind: {c: [cell.successes, cell.trials, cell.safety_stops] for c, cell in row.items()}
-                     for kind, row in rows.items()}}
+                     for kind, row in rows.items()},
+            "completed": {kind: row["full"].completed for kind, row in rows.items() if row["full"].trials}}
 
 
 def _compose(out: Path, inputs: dict[str, Path], config, seeds: list[int], resolution: int,

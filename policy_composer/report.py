@@ -11,12 +11,20 @@ import time
 from importlib import metadata
 from pathlib import Path
 
-from policy_composer.composition import PAPER_COMPOSED, back_offs, load_episodes, sequence_counts
+from policy_composer.composition import (
+    PAPER_COMPOSED,
+    back_offs,
+    failure_table,
+    load_episodes,
+    progressive,
+    sequence_counts,
+)
 from policy_composer.controller_table import PAPER as PAPER_TABLE
 from policy_composer.controller_table import SUBTASK_COLUMNS
 from policy_composer.data import atomic
 from policy_composer.pipeline import StageRecord
 from policy_composer.selector.compose import ComposedEpisode
+from policy_composer.stats import rate
 
 ASSETS = "report"  # folder beside report.md with the figures and videos it shows
 PAPER_CAMERAS = ("the head camera does not see the fine details of the movement which the forearm cameras do, "
@@ -101,27 +109,33 @@ def _table_one(records, composed: list[ComposedEpisode], knocked: list[ComposedE
 
     def cell(kind: str, column: str) -> str:
         ok, n, stops = rows[kind][column]
-        return "-" if n == 0 else f"{ok}/{n}" + (f" ({stops}*)" if stops else "")
+        return rate(ok, n) + (f" ({stops}*)" if stops else "")
 
     lines = ["## Table I: each controller on each subtask", "",
-             "Each cell: ours (paper). `*`: stopped for safety. `-`: not run. Start states, failures: "
-             f"[controllers.md]({link('table', 'controllers.md')}).", "",
+             "Each cell: ours, with the Wilson 95% interval (paper). `*`: stopped for safety. `-`: not run. Start "
+             f"states, failures: [controllers.md]({link('table', 'controllers.md')}).", "",
              "| controller | pick | move | insert | full task |", "|---|---|---|---|---|"]
     for kind in rows:
         paper = PAPER_TABLE.get(kind, {})
         lines.append(f"| {kind} | " + " | ".join(f"{cell(kind, c)} ({paper.get(c, '-')})" for c in SUBTASK_COLUMNS)
                      + " |")
     first = composed[:10]
-    lines.append(f"| composed (selector) | - | - | - | {sum(e.success for e in first)}/{len(first)} "
+    lines.append(f"| composed (selector) | - | - | - | {rate(sum(e.success for e in first), len(first))} "
                  f"({PAPER_COMPOSED}) |")
     if len(composed) > len(first):
-        lines += ["", f"Composed over {len(composed)} seeds: {sum(e.success for e in composed)}/{len(composed)} "
+        lines += ["", f"Composed over {len(composed)} seeds: {rate(sum(e.success for e in composed), len(composed))} "
                       "full-task successes (the paper runs 10)."]
+    completed = records["table"].facts.get("completed", {})
+    lines += ["", "Progressive completion of the full task: how many trials got at least this far.", "",
+              "| controller | progressive completion |", "|---|---|"]
+    lines += [f"| {kind} | {progressive(c)} |" for kind, c in completed.items()]
+    lines += [f"| composed (selector) | {progressive([e.reached for e in composed])} |"]
     hit = [e for e in knocked if e.knocked_out]
     if hit:
         lines += ["", f"Beyond the paper, recovery: the gear was knocked out of the gripper in {len(hit)} of "
                       f"{len(knocked)} episodes, and the selector still finished the task in "
-                      f"{sum(e.success for e in hit)}/{len(hit)} ([summary]({link('knock-out', 'summary.md')}))."]
+                      f"{rate(sum(e.success for e in hit), len(hit))} "
+                      f"([summary]({link('knock-out', 'summary.md')}))."]
     return "\n".join(lines)
 
 
@@ -137,6 +151,9 @@ def _composition(composed: list[ComposedEpisode], video: str | None, knock_video
     backed = back_offs(composed)
     if backed:
         lines += ["", backed]
+    causes = failure_table(composed)
+    if causes:
+        lines += ["", "Failed composed episodes by cause:", "", *causes]
     lines += ["", "| controllers chosen, in order | episodes |", "|---|---|"]
     lines += [f"| {s or '(none could start)'} | {c} |" for s, c in sequence_counts(composed)]
     if composed:

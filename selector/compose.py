@@ -38,6 +38,9 @@ class ComposedEpisode:
     knocked_out: bool = False
     activations: list[Activation] = field(default_factory=list)
     decisions: list[dict] = field(default_factory=list)  # step, choice and every candidate's score
+    reached: int = 0  # the furthest stage the task reached (1 picked, 2 at the pre-insertion pose, 3 seated)
+    ended: str = ""  # "task done", "nothing applicable" or "out of steps"
+    gear: str = ""  # where the gear was at the end (see `gear_whereabouts`)
 
     @property
     def sequence(self) -> list[str]:
@@ -49,7 +52,7 @@ class ComposedEpisode:
     @classmethod
     def from_dict(cls, d: dict) -> ComposedEpisode:
         return cls(d["seed"], d["success"], d["steps"], d["knocked_out"], [Activation(**a) for a in d["activations"]],
-                   d["decisions"])
+                   d["decisions"], d.get("reached", 0), d.get("ended", ""), d.get("gear", ""))
 
 
 class Eligibility:
@@ -84,6 +87,19 @@ class Eligibility:
                 and (self.episode_failures is None or self.all_failures[name] < self.episode_failures))
 
 
+def gear_whereabouts(info: dict) -> str:
+    """Where the gear is, in the words of the task's flags."""
+    if bool(info["success"][0]):
+        return "seated on the peg"
+    if bool(info["gear_inserted"][0]):
+        return "on the peg, not seated"
+    if bool(info["gear_at_peg"][0]):
+        return "in the hand above the peg"
+    if bool(info["gear_grasped"][0]):
+        return "in the hand"
+    return "out of the hand"
+
+
 FrameHook = Callable[[dict, str, float], None]  # (observation, running controller, goal score now)
 
 
@@ -96,8 +112,8 @@ def compose_episode(env, library: dict[str, Controller], world: GearWorldModel, 
                          f"(the world model has {list(world.dynamics)})")
     selector = world.selector(config.horizon, config.samples, seed=seed, controllers=names)
     u = env.unwrapped
-    obs, _ = env.reset(seed=seed)
-    result = ComposedEpisode(seed)
+    obs, info = env.reset(seed=seed)
+    result = ComposedEpisode(seed, reached=int(info["stage"][0]))
     running: Controller | None = None
     current: Activation | None = None
     eligibility = Eligibility(config.max_failures, config.episode_failures)
@@ -130,14 +146,20 @@ def compose_episode(env, library: dict[str, Controller], world: GearWorldModel, 
             if running is None:
                 break
             current = result.activations[-1]
-        obs, *_ = env.step(u.flat_to_dict_action(running.act(obs)))
+        obs, _, _, _, info = env.step(u.flat_to_dict_action(running.act(obs)))
         current.steps += 1
         result.steps = step + 1
+        result.reached = max(result.reached, int(info["stage"][0]))
         if on_frame is not None:
             on_frame(obs, running.name, world.score_observation(obs))
-    if running is not None and current.outcome == "running":
-        current.outcome = running.outcome.value if running.done(obs) else "cut off at max_steps"
-        current.reason = getattr(running, "reason", "")
-    result.success = bool(u.evaluate()["success"][0])
+    info = u.evaluate()
+    result.success, result.gear = bool(info["success"][0]), gear_whereabouts(info)
+    if running is None:
+        result.ended = "task done" if result.success else "nothing applicable"
+    else:
+        result.ended = "out of steps"
+        if current.outcome == "running":
+            current.outcome = running.outcome.value if running.done(obs) else "cut off at max_steps"
+            current.reason = getattr(running, "reason", "")
     result.knocked_out = bool(getattr(u, "knocked_out", False))
     return result

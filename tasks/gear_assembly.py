@@ -64,6 +64,7 @@ ALIGN_TOL_DEG = 8.0
 INSERT_TILT_DEG = 15.0  # a gear at or on the peg tilted further is caught on it, not going down it
 SEATED_TOL = 0.004  # gear bottom at most this far above the plate
 LIFT_HEIGHT = 0.03
+ON_TABLE_HEIGHT = 0.02  # a gear lying flat on the table has its origin (its bottom) below this (m)
 GRASP_DISTANCE = 0.05  # gear origin to the left TCP while grasped (m)
 PRE_INSERT_RADIUS = 0.015
 PRE_INSERT_HEIGHT = 0.06
@@ -346,9 +347,12 @@ class GearAssemblyEnv(BaseEnv):
         inserted = ((radial < self.gear_spec.hole_radius + 0.0015) & (height < peg_h - 0.003) & (height > -0.005)
                     & (axis_cos > np.cos(np.deg2rad(INSERT_TILT_DEG))))
         success = inserted & aligned & (height < SEATED_TOL)
+        upright = self.gear.pose.to_transformation_matrix()[:, 2, 2] > np.cos(np.deg2rad(ALIGN_TOL_DEG))
+        on_table = ~grasped & ~inserted & (self.gear.pose.p[:, 2] < ON_TABLE_HEIGHT) & upright
         stage = torch.where(success, 3, torch.where(at_peg | inserted, 2, torch.where(lifted, 1, 0)))
         return dict(success=success, gear_grasped=grasped, gear_lifted=lifted, gear_at_peg=at_peg,
-                    gear_inserted=inserted, stage=stage, radial_offset=radial, height_above_base=height)
+                    gear_inserted=inserted, gear_on_table=on_table, stage=stage, radial_offset=radial,
+                    height_above_base=height)
 
     def _get_obs_extra(self, info: dict):
         obs = dict(state=self.joint_state(), tcp_pose=self.left_arm.tcp.pose.raw_pose)

@@ -98,11 +98,9 @@ def follow_demonstration(env, model, seed: int) -> dict[str, np.ndarray]:
     prediction from the live camera image and state, beside the target the training code makes of the expert's
     command there (the change from its previous command, in the hand's frame, and the gripper)."""
     u = env.unwrapped
-    obs, _ = env.reset(seed=seed)
+    obs, _ = env.reset(seed=seed, options={"start": "pre_insertion"})  # the demonstration's first recorded frame
     expert = GearAssemblyExpert(env, ExpertConfig(teleop=True))  # the recipe's demonstrator
     expert.reset(seed)
-    while expert.phase != "insert":  # the demonstration's first recorded frame
-        obs, *_ = env.step(u.flat_to_dict_action(expert.act(obs)))
     config, rows = model.config, {"predicted": [], "target": []}
     prev = obs["extra"]["state"][:1].float()  # an episode's first previous command: the measured joints
     while not expert.done and expert.phase in ("insert", "release", "retreat"):

@@ -80,6 +80,28 @@ def test_centred_grasp_inserts_and_offset_grasp_fails(state_env):
     assert insert.can_start(obs)
 
 
+def test_the_regrasp_turns_a_gear_shifted_in_the_hand_into_one_a_pick_up_grasps_afresh(state_env):
+    """From the insertion's start with the gear 12 mm off-centre, the open-loop insertion backs off with it; the
+    re-grasp puts it down flat on the table (and may start nowhere else but with the gear in the hand), and a centred
+    pick-up, move and insertion then seat it."""
+    obs, info = state_env.reset(seed=9, options={"start": "pre_insertion"})
+    assert abs(state_env.unwrapped.grasp_offset) > 0.01 and not info["gear_on_table"][0]
+    insert, regrasp = (MotionPlanningController(state_env, SUBTASKS[n], grasp_offset=0.0)
+                       for n in ("insert", "regrasp"))
+    obs = run_activation(state_env, insert, obs, seed=9)
+    assert insert.outcome is Outcome.FAILED and insert.reason.startswith("backed off"), insert.reason
+    assert regrasp.can_start(obs)
+    obs = run_activation(state_env, regrasp, obs, seed=9)
+    info = regrasp.scene.info()
+    assert regrasp.outcome is Outcome.DONE, regrasp.reason
+    assert info["gear_on_table"] and not info["gear_grasped"] and not regrasp.can_start(obs)
+    for name in ("pick", "move", "insert"):
+        controller = MotionPlanningController(state_env, SUBTASKS[name], grasp_offset=0.0)
+        obs = run_activation(state_env, controller, obs, seed=9)
+        assert controller.outcome is Outcome.DONE, (name, controller.reason)
+    assert bool(state_env.unwrapped.evaluate()["success"][0])
+
+
 def test_initiation_sets_refuse_wrong_states(state_env):
     obs, _ = state_env.reset(seed=0)
     for controller in (MotionPlanningController(state_env, SUBTASKS[n]) for n in ("move", "insert")):

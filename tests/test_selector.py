@@ -158,15 +158,23 @@ def test_an_insertion_that_keeps_failing_is_dropped_for_the_episode():
 
 def test_the_summary_counts_back_offs_and_what_came_of_them():
     backed = "backed off: the gear did not go down the peg"
+    in_hand = dict(ended="nothing applicable", gear="in the hand above the peg")
     episodes = [ComposedEpisode(0, True, 300, activations=[Activation("mp_insert", 0, 90, "failed", backed),
-                                                           Activation("cnn_insert", 90, 80, "done")]),
-                ComposedEpisode(1, False, 200, activations=[Activation("dmp_insert", 0, 90, "failed", backed)]),
-                ComposedEpisode(2, False, 100, activations=[Activation("cnn_insert", 0, 90, "failed", "not seated")])]
+                                                           Activation("cnn_insert", 90, 80, "done")], reached=3),
+                ComposedEpisode(1, False, 200, activations=[Activation("dmp_insert", 0, 90, "failed", backed)],
+                                reached=2, **in_hand),
+                ComposedEpisode(2, False, 100, activations=[Activation("cnn_insert", 0, 90, "failed", "not seated")],
+                                reached=2, ended="nothing applicable", gear="on the peg, not seated"),
+                ComposedEpisode(3, False, 100, activations=[Activation("dmp_insert", 0, 90, "failed", backed)],
+                                reached=2, **in_hand)]
     text = summary(episodes, ComposeConfig())
-    assert "| composed | 1/3 |" in text
-    assert "backed off with the gear (instead of letting it go where its subtask fails) in 2 episodes; another " \
-           "controller then finished the task in 1/2." in text
-    assert back_offs(episodes[2:]) == "" and "backed off" not in summary(episodes[2:], ComposeConfig())
+    # The rate with its Wilson interval, how far the episodes got, and the failures grouped by cause.
+    assert "| composed | 1/4 (95% CI 5-70%) | picked 4/4 · at the pre-insertion pose 4/4 · seated 1/4 |" in text
+    assert ("| dmp_insert failed: backed off | nothing applicable | in the hand above the peg | 2 | 1, 3 |\n"
+            "| cnn_insert failed: not seated | nothing applicable | on the peg, not seated | 1 | 2 |") in text
+    assert "backed off with the gear (instead of letting it go where its subtask fails) in 3 episodes; another " \
+           "controller then finished the task in 1/3." in text
+    assert back_offs(episodes[2:3]) == "" and "backed off" not in summary(episodes[2:3], ComposeConfig())
 
 
 def test_a_composed_episode_runs_end_to_end(world):
@@ -192,6 +200,8 @@ def test_a_composed_episode_runs_end_to_end(world):
     assert len(frames) == result.steps and all(0.0 <= s <= 1.0 for _, s in frames)
     # After the pick (gear lifted, not at the peg) neither controller may start: the episode stops there.
     assert result.sequence == ["mp_pick"] and not result.success
+    assert (result.reached, result.ended, result.gear) == (1, "nothing applicable", "in the hand")
+    assert ComposedEpisode.from_dict(json.loads(json.dumps(result.to_dict()))) == result
 
 
 def test_knock_out_puts_the_gear_back_on_the_table(state_env):
