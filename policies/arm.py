@@ -23,10 +23,10 @@ import torch
 
 from policy_composer.policies.base import Controller
 from policy_composer.policies.planning import VELOCITY_LIMIT
+from policy_composer.tasks.gear_assembly import CARRY_CLEARANCE
 from policy_composer.tasks.gear_kinematics import JOINT_HIGH, JOINT_LOW, plate_direction
 
 GRIPPER_OPEN, GRIPPER_CLOSED = 1.0, -1.0
-CARRY_CLEARANCE = 0.03  # gear bottom above the peg top at the pre-insertion pose (m)
 RELEASE_HEIGHT = 0.012  # gear bottom above the plate when the gripper opens (m)
 
 
@@ -57,7 +57,7 @@ class SceneGeometry:
     def __init__(self, env):
         self.env = env.unwrapped if hasattr(env, "unwrapped") else env
         spec = self.env.gear_spec
-        self.grasp_height = spec.ring_thickness + 0.7 * spec.top_thickness  # TCP above the gear's bottom
+        self.grasp_height = spec.grasp_height
         self.spec = spec
 
     def finger_dir(self) -> np.ndarray:

@@ -18,7 +18,6 @@ import numpy as np
 import sapien
 
 from policy_composer.policies.arm import (
-    CARRY_CLEARANCE,
     GRIPPER_CLOSED,
     GRIPPER_OPEN,
     RELEASE_HEIGHT,
@@ -29,6 +28,7 @@ from policy_composer.policies.arm import (
     np0,
 )
 from policy_composer.policies.planning import VELOCITY_LIMIT, PlanningError
+from policy_composer.tasks.gear_assembly import CARRY_CLEARANCE
 from policy_composer.tasks.gear_kinematics import LeftArmIK
 
 PRE_GRASP_HEIGHT = 0.08  # TCP above the grasp point before descending (m)

@@ -219,8 +219,7 @@ class GearAssemblyEnv(BaseEnv):
         xy_error, z_error = ARRIVAL_ERROR_MAX
         arrival = np.append(rng.uniform(-xy_error, xy_error, 2), rng.uniform(0.0, z_error))
         yaw = float(rng.uniform(0, 2 * np.pi))
-        spec = self.gear_spec
-        grasp_height = spec.ring_thickness + 0.7 * spec.top_thickness  # TCP above the gear's bottom
+        grasp_height = self.gear_spec.grasp_height
         x = plate_direction(self)
         x[2] = 0.0
         x /= np.linalg.norm(x)
@@ -228,7 +227,7 @@ class GearAssemblyEnv(BaseEnv):
         solution = LeftArmIK(self).solve_hand_down(tcp, x, LEFT_START_QPOS)
         if solution is None:
             raise RuntimeError("the pre-insertion pose is out of the left arm's reach for this seed")
-        quat, q = solution
+        q = solution[1]
         q = np.concatenate([q[:7], [0.04, 0.04]])
         left = self.left_arm
         left.robot.set_qpos(torch.as_tensor(q, dtype=torch.float32)[None])

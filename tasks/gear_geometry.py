@@ -49,6 +49,11 @@ class GearSpec:
         return self.peg_radius + self.clearance
 
     @property
+    def grasp_height(self) -> float:
+        """The TCP above the gear's bottom in the nominal grasp: the fingers pinch the small gear's teeth."""
+        return self.ring_thickness + 0.7 * self.top_thickness
+
+    @property
     def height(self) -> float:
         return self.ring_thickness + self.top_thickness
 
