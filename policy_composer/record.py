@@ -107,8 +107,7 @@ def _record_expert(recipe: Recipe, recorder, target: int, seed: int, bar) -> Non
 
     expert = GearAssemblyExpert(recorder, ExpertConfig(grasp_offset=recipe.expert.grasp_offset_mm / 1000.0,
                                                        teleop=recipe.expert.teleop,
-                                                       arrival_error=recipe.expert.arrival_error_mm / 1000.0,
-                                                       perturbation=recipe.expert.perturbation_mm / 1000.0))
+                                                       arrival_error=recipe.expert.arrival_error_mm / 1000.0))
     limit, attempts = episode_limit(recorder), 0
     while recorder.num_episodes < target:
         attempts += 1
@@ -124,8 +123,7 @@ def _record_expert(recipe: Recipe, recorder, target: int, seed: int, bar) -> Non
             if expert.done:
                 break
             recorder.recording = not recipe.record_phases or expert.phase in recipe.record_phases
-            action = expert.act(obs)
-            obs, _, _, _, info = recorder.step(action, executed=expert.executed)
+            obs, _, _, _, info = recorder.step(expert.act(obs))
         success = info is not None and bool(info["success"][0])
         if recorder.buffered_frames == 0 or (recipe.keep == "success" and not success):
             recorder.discard_episode()

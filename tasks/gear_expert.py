@@ -43,11 +43,6 @@ class ExpertConfig:
     # behaviour-cloned policy must learn.)
     teleop: bool = False
     arrival_error: float = 0.004
-    # DART (Laskey et al. 2017): while inserting, the command sent to the arm is pushed off the demonstrator's by a
-    # drifting random shift of this standard deviation (m), while `act` still returns the demonstrator's own
-    # command, so demonstrations recorded this way show corrections from states a clean demonstrator never visits.
-    perturbation: float = 0.0
-    perturbation_memory: float = 0.8  # the shift's correlation from one step to the next
 
 
 class GearAssemblyExpert:
@@ -115,8 +110,6 @@ class GearAssemblyExpert:
             self.grasp_offset, self.phase, self._gripper = env.grasp_offset, "insert", GRIPPER_CLOSED
             self._cmd_q = self._np(env.left_arm.tcp.pose.q)
         self._hold = self._np(env.hold_action())
-        self._rng, self._shift = rng, np.zeros(3)
-        self.executed: torch.Tensor | None = None  # the command sent to the arm, where it differs from `act`'s
         if cfg.teleop:
             self._arrival = np.append(rng.uniform(-cfg.arrival_error, cfg.arrival_error, 2), rng.uniform(0.0, 0.01))
             self._gain, self._speed = rng.uniform(0.25, 0.6), rng.uniform(0.6, 1.2)
@@ -181,16 +174,7 @@ class GearAssemblyExpert:
         else:
             action[:7] = self._q_seed[:7]
         action[7] = self._gripper
-        self.executed = self._perturbed(action, target) if self.phase == "insert" and cfg.perturbation else None
         return torch.as_tensor(action, dtype=torch.float32)
-
-    def _perturbed(self, action: np.ndarray, target: sapien.Pose) -> torch.Tensor:
-        """`action` with the arm commanded to `target` shifted across the peg by the drifting DART shift."""
-        cfg, m = self.config, self.config.perturbation_memory
-        self._shift = m * self._shift + np.sqrt(1 - m * m) * self._rng.normal(0.0, cfg.perturbation, 3) * [1, 1, 0]
-        executed = action.copy()
-        executed[:7] = self._ik_joint_targets(sapien.Pose(target.p + self._shift, target.q))
-        return torch.as_tensor(executed, dtype=torch.float32)
 
     @property
     def done(self) -> bool:

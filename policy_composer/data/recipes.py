@@ -22,7 +22,6 @@ class ExpertSettings:
     grasp_offset_mm: float = 12.0
     teleop: bool = False
     arrival_error_mm: float = 4.0  # teleop: how much further off its rough carry may leave the gear
-    perturbation_mm: float = 0.0  # DART: the drifting shift of the commands sent while inserting (ExpertConfig)
 
 
 @dataclass(frozen=True)

@@ -113,14 +113,11 @@ class LeRobotRecorder(gym.Wrapper):
         self._stage = int(self.env.unwrapped.evaluate()["stage"][0])
         return obs, info
 
-    def step(self, action, executed=None):
-        """Step the env with `action` (or with `executed`, recording `action` as the frame's action: a DART
-        demonstrator's own command beside the perturbed one the arm was sent)."""
+    def step(self, action):
         interrupt.check()  # a Ctrl-C swallowed mid-episode (say, by a rebuilt scene's __del__) ends it here
         u = self.env.unwrapped
         flat = _flat(action, u)
-        sent = flat if executed is None else _flat(executed, u)
-        obs, reward, terminated, truncated, info = self.env.step(u.flat_to_dict_action(sent))
+        obs, reward, terminated, truncated, info = self.env.step(u.flat_to_dict_action(flat))
         if self.recording:
             prev = self._obs
             self._frames.append({
