@@ -18,6 +18,7 @@ from pathlib import Path
 from policy_composer.data import atomic
 from policy_composer.policies.arm import Outcome, run_activation
 from policy_composer.policies.subtasks import TASK_SEQUENCE
+from policy_composer.stats import rate
 
 SUBTASK_COLUMNS = ("pick", "move", "insert", "full")
 SEQUENCES = {"pick": ("pick",), "move": ("move",), "insert": ("insert",), "full": TASK_SEQUENCE}
@@ -38,9 +39,7 @@ class Cell:
     completed: list[int] = field(default_factory=list)  # per trial: how many of its subtasks were done, in order
 
     def __str__(self) -> str:
-        if self.trials == 0:
-            return "-"
-        return f"{self.successes}/{self.trials}" + (f" ({self.safety_stops}*)" if self.safety_stops else "")
+        return rate(self.successes, self.trials) + (f" ({self.safety_stops}*)" if self.safety_stops else "")
 
 
 def start_state(env, seed: int, subtask: str, max_steps: int = 300):
@@ -105,7 +104,7 @@ def evaluate_kind(env, controllers: dict[str, object], trials: int, first_seed: 
                     break
                 done += 1
             ok = outcome is Outcome.DONE and (column != "full" or bool(env.unwrapped.evaluate()["success"][0]))
-            cell.completed.append(done if ok or done < len(sequence) else done - 1)
+            cell.completed.append(done if ok or done < len(sequence) else done - 1)  # the last one must seat it
             cell.trials += 1
             cell.successes += ok
             cell.safety_stops += outcome is Outcome.SAFETY_STOP
@@ -149,11 +148,13 @@ def write_table(rows: dict[str, dict[str, Cell]], out: Path, notes: dict[str, st
                 w.writerow([kind, column, cell.successes, cell.trials, cell.safety_stops,
                             PAPER.get(kind, {}).get(column, "")])
     lines = ["# Controllers on each subtask (paper Table I, first rows)", "",
-             "Each cell: ours (paper). `*`: stopped for safety. `-`: not run.", "",
+             "Each cell: ours, with the Wilson 95% interval; then the paper's. `*`: stopped for safety. `-`: not run.",
+             "",
              "| controller | pick | move | insert | full task |", "|---|---|---|---|---|"]
     for kind, row in rows.items():
         paper = PAPER.get(kind, {})
-        lines.append(f"| {kind} | " + " | ".join(f"{row[c]} ({paper.get(c, '-')})" for c in SUBTASK_COLUMNS) + " |")
+        cells = [f"{row[c]}; paper {paper.get(c, '-')}" for c in SUBTASK_COLUMNS]
+        lines.append(f"| {kind} | " + " | ".join(cells) + " |")
     lines += ["", "## Failures", ""]
     for kind, row in rows.items():
         for column, cell in row.items():

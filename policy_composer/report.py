@@ -112,16 +112,16 @@ def _table_one(records, composed: list[ComposedEpisode], knocked: list[ComposedE
         return rate(ok, n) + (f" ({stops}*)" if stops else "")
 
     lines = ["## Table I: each controller on each subtask", "",
-             "Each cell: ours, with the Wilson 95% interval (paper). `*`: stopped for safety. `-`: not run. Start "
-             f"states, failures: [controllers.md]({link('table', 'controllers.md')}).", "",
+             "Each cell: ours, with the Wilson 95% interval; then the paper's. `*`: stopped for safety. `-`: not run. "
+             f"Start states, failures: [controllers.md]({link('table', 'controllers.md')}).", "",
              "| controller | pick | move | insert | full task |", "|---|---|---|---|---|"]
     for kind in rows:
         paper = PAPER_TABLE.get(kind, {})
-        lines.append(f"| {kind} | " + " | ".join(f"{cell(kind, c)} ({paper.get(c, '-')})" for c in SUBTASK_COLUMNS)
+        lines.append(f"| {kind} | " + " | ".join(f"{cell(kind, c)}; paper {paper.get(c, '-')}" for c in SUBTASK_COLUMNS)
                      + " |")
     first = composed[:10]
-    lines.append(f"| composed (selector) | - | - | - | {rate(sum(e.success for e in first), len(first))} "
-                 f"({PAPER_COMPOSED}) |")
+    lines.append(f"| composed (selector) | - | - | - | {rate(sum(e.success for e in first), len(first))}; "
+                 f"paper {PAPER_COMPOSED} |")
     if len(composed) > len(first):
         lines += ["", f"Composed over {len(composed)} seeds: {rate(sum(e.success for e in composed), len(composed))} "
                       "full-task successes (the paper runs 10)."]

@@ -188,7 +188,8 @@ def test_the_main_job_runs_every_stage_reuses_them_and_writes_a_report_a_browser
 
     report = (tmp_path / "report.md").read_text()
     for row in ("| MP |", "| DMP |", "| CNN |", "| composed (selector) |", "| head |", "| left_forearm |",
-                "| right_forearm |", "planning steps to the goal", "| step | chosen |", "## Machine"):
+                "| right_forearm |", "planning steps to the goal", "| step | chosen |", "## Machine",
+                "(95% CI ", "| composed (selector) | picked "):
         assert row in report, f"{row!r} missing from the report"
     assert "0 of 11 stages ran" in report
 
