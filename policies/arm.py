@@ -6,7 +6,9 @@ command that would break them stops the controller "for safety" (the paper's `*`
 
 A controller serving a subtask also has the subtask guard its gripper: a release the subtask would not survive
 (the gear let go on top of the peg instead of on it) is not sent; the controller backs off to where the subtask
-began, still holding the gear, and fails, so the selector can give the subtask to another controller.
+began, still holding the gear, and fails, so the selector can give the subtask to another controller. It does the
+same when the subtask says it is off course (an insertion that leads the gear away from the peg, or ends with the
+gear still in the hand beside it).
 
 Initiation sets and outcomes are judged on the simulator's state (`env.evaluate()`, the gear pose): they
 stand for the perception that decides where each controller may run, and the controllers' own inputs stay
@@ -138,16 +140,19 @@ class LeftArmController(Controller):
         return self.outcome is not Outcome.RUNNING
 
     def _guarded_command(self, obs) -> tuple[np.ndarray, float] | None:
-        """The next command, unless it opens the gripper where the subtask forbids: then the back-off's next one."""
+        """The next command, unless the subtask says to stop here (a release it would not survive, or the gear led
+        off its course): then the back-off's next one."""
         if self._back_off is None:
             cmd = self.next_command(obs)
-            if cmd is None or cmd[1] <= 0 or self.subtask is None:
+            if self.subtask is None:
                 return cmd
-            blocked = self.subtask.release_blocked(self.scene.info())
-            if not blocked:
+            info = self.scene.info()
+            opening = cmd is not None and cmd[1] > 0
+            why = (self.subtask.release_blocked(info) if opening else "") or self.subtask.off_course(info, cmd is None)
+            if not why:
                 return cmd
             self._back_off = list(self.subtask.back_off(self.ik, self.scene, np0(self.env.left_arm.robot.get_qpos())))
-            self._back_off_reason = f"{'backed off' if self._back_off else 'kept the gear (no way back)'}: {blocked}"
+            self._back_off_reason = f"{'backed off' if self._back_off else 'kept the gear (no way back)'}: {why}"
         return (self._back_off.pop(0), GRIPPER_CLOSED) if self._back_off else None
 
     def safety_violation(self, q: np.ndarray) -> str:

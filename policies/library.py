@@ -15,7 +15,8 @@ from policy_composer.policies.registry import LibraryError, get_kind, kind_of, k
 # Bumped when the controllers behave differently, so that stored runs of the old ones are not reused.
 # 2: an insertion that would let the gear go on top of the peg backs off with it to the pre-insertion pose.
 # 3: plans are bounded by collision checks, not seconds, and do not depend on earlier plans.
-# 4: the re-grasp (mp_regrasp).
+# 4: the re-grasp (mp_regrasp); an insertion that leads the gear away from the peg, or ends holding it off the peg,
+#    backs off.
 LIBRARY_REVISION = 4
 
 __all__ = ["LIBRARY_REVISION", "LeRobotSource", "LibraryError", "LibrarySources", "all_names", "build_library",

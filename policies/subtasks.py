@@ -28,7 +28,7 @@ from policy_composer.policies.arm import (
     np0,
 )
 from policy_composer.policies.planning import VELOCITY_LIMIT, PlanningError
-from policy_composer.tasks.gear_assembly import CARRY_CLEARANCE
+from policy_composer.tasks.gear_assembly import CARRY_CLEARANCE, PRE_INSERT_RADIUS
 from policy_composer.tasks.gear_kinematics import LeftArmIK
 
 PRE_GRASP_HEIGHT = 0.08  # TCP above the grasp point before descending (m)
@@ -37,6 +37,7 @@ RETREAT_HEIGHT = 0.10
 PLACE_XY = (0.0, -0.30)  # where the re-grasp puts the gear down: the middle of the gear's start area on the table
 PLACE_DROP = 0.005  # the gear's bottom above the table when the re-grasp lets go (m)
 CLEAR_HEIGHT = 0.05  # the re-grasp first lifts the gear straight up this far, clear of the peg (m)
+OFF_COURSE_RADIUS = PRE_INSERT_RADIUS + 0.005  # an insertion that takes the gear this far off the peg's axis stops (m)
 # A learned controller's steps are limited to this fraction of the joint velocity limits (see limit_step).
 STEP_SPEED_MARGIN = 0.9
 
@@ -97,6 +98,11 @@ class Subtask:
 
     def release_blocked(self, info: dict) -> str:
         """Why the gripper must not open now ("" if it may)."""
+        return ""
+
+    def off_course(self, info: dict, finished: bool) -> str:
+        """Why a controller of this subtask must stop now and back off with the gear, though it would go on
+        (`finished`: it has nothing more to do) ("" if it need not)."""
         return ""
 
     def back_off(self, ik: LeftArmIK, scene: SceneGeometry, q_now: np.ndarray) -> np.ndarray:
@@ -169,6 +175,15 @@ class Insert(Subtask):
         if info["gear_grasped"] and not info["gear_inserted"]:
             return "the gear did not go down the peg (it would have been let go on top of it)"
         return ""
+
+    def off_course(self, info, finished):
+        """A controller that leads the gear away from the peg, or stops with it in the hand and off the peg, would
+        leave it where no controller may start: the insertion's termination condition."""
+        if not info["gear_grasped"] or info["gear_inserted"]:
+            return ""
+        if info["radial_offset"] > OFF_COURSE_RADIUS:
+            return f"the gear was led away from the peg ({1000 * info['radial_offset']:.0f} mm off its axis)"
+        return "it stopped with the gear in the hand, off the peg" if finished else ""
 
     def back_off(self, ik, scene, q_now):
         """Straight up to the pre-insertion height, then across to the pre-insertion pose (none if IK finds no way)."""

@@ -178,3 +178,30 @@ def test_a_learned_insertion_that_lets_go_above_the_peg_keeps_the_gear_and_fails
     info = opens.scene.info()
     assert opens.outcome is Outcome.FAILED and opens.reason.startswith("backed off: the gear did not go down")
     assert info["gear_grasped"] and info["gear_at_peg"] and opens.can_start(obs)
+
+
+def test_a_learned_insertion_that_leads_the_gear_away_backs_off_with_it(state_env):
+    """The insertion's termination condition: a policy that carries the gear away from the peg (as a badly trained
+    CNN did, 38 mm off and down beside the peg) is stopped once it is off course and brings the gear back to the
+    pre-insertion pose, still holding it; one that merely runs out of steps holding the gear off the peg does too."""
+    from policy_composer.policies.arm import np0
+    from policy_composer.policies.subtasks import OFF_COURSE_RADIUS
+
+    class Wanders(LearnedController):
+        def reset(self, obs, seed=None):
+            super().reset(obs, seed)
+            self.start_tcp, self.quat = self.scene.tcp(), np0(self.ik.arm.tcp.pose.q)
+
+        def predict(self, obs):  # 3 mm a step along the plate, away from the peg
+            away = self.scene.finger_dir() * 0.003 * self._steps
+            q, _ = self.ik.solve(sapien.Pose(self.start_tcp + away, self.quat), np0(self.ik.arm.robot.get_qpos()))
+            return q[:7], -1.0
+
+    for max_steps, reason in ((60, "the gear was led away from the peg"), (2, "it stopped with the gear in the hand")):
+        obs, _ = state_env.reset(seed=7, options={"start": "pre_insertion"})
+        wanders = Wanders(state_env, SUBTASKS["insert"], "wanders_insert", max_steps=max_steps)
+        obs = run_activation(state_env, wanders, obs, seed=7)
+        info = wanders.scene.info()
+        assert wanders.outcome is Outcome.FAILED and wanders.reason.startswith(f"backed off: {reason}"), wanders.reason
+        assert wanders._steps <= max_steps and (max_steps == 2 or wanders._steps < 15)  # stopped, not run out
+        assert info["gear_grasped"] and info["gear_at_peg"] and info["radial_offset"] < OFF_COURSE_RADIUS
