@@ -46,9 +46,10 @@ def wiggle():
 
 def test_the_built_in_kinds():
     assert [(k.name, k.label, k.subtasks) for k in registry.kinds().values()] == [
-        ("mp", "MP", ("pick", "move", "insert")), ("dmp", "DMP", ("pick", "move", "insert")),
+        ("mp", "MP", ("pick", "move", "insert", "regrasp")), ("dmp", "DMP", ("pick", "move", "insert")),
         ("cnn", "CNN", ("insert",))]
-    assert all_names() == ("mp_pick", "mp_move", "mp_insert", "dmp_pick", "dmp_move", "dmp_insert", "cnn_insert")
+    assert all_names() == ("mp_pick", "mp_move", "mp_insert", "mp_regrasp", "dmp_pick", "dmp_move", "dmp_insert",
+                           "cnn_insert")
     assert names_of_kind("dmp") == names_of_kind("DMP") == ("dmp_pick", "dmp_move", "dmp_insert")
     with pytest.raises(LibraryError, match="unknown controller kind 'RL'; the library has MP, DMP, CNN"):
         get_kind("RL")
