@@ -227,8 +227,7 @@ class GearAssemblyEnv(BaseEnv):
         solution = LeftArmIK(self).solve_hand_down(tcp, x, LEFT_START_QPOS)
         if solution is None:
             raise RuntimeError("the pre-insertion pose is out of the left arm's reach for this seed")
-        q = solution[1]
-        q = np.concatenate([q[:7], [0.04, 0.04]])
+        q = np.concatenate([solution[1][:7], [0.04, 0.04]])  # fingers open
         left = self.left_arm
         left.robot.set_qpos(torch.as_tensor(q, dtype=torch.float32)[None])
         left.robot.set_qvel(torch.zeros((1, 9)))
