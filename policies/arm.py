@@ -146,9 +146,9 @@ class LeftArmController(Controller):
             cmd = self.next_command(obs)
             if self.subtask is None:
                 return cmd
-            info = self.scene.info()
             opening = cmd is not None and cmd[1] > 0
-            why = (self.subtask.release_blocked(info) if opening else "") or self.subtask.off_course(info, cmd is None)
+            why = ((self.subtask.release_blocked(self.scene.info()) if opening else "")
+                   or self.subtask.off_course(self.scene, cmd is None))
             if not why:
                 return cmd
             self._back_off = list(self.subtask.back_off(self.ik, self.scene, np0(self.env.left_arm.robot.get_qpos())))

@@ -100,7 +100,7 @@ class Subtask:
         """Why the gripper must not open now ("" if it may)."""
         return ""
 
-    def off_course(self, info: dict, finished: bool) -> str:
+    def off_course(self, scene: SceneGeometry, finished: bool) -> str:
         """Why a controller of this subtask must stop now and back off with the gear, though it would go on
         (`finished`: it has nothing more to do) ("" if it need not)."""
         return ""
@@ -176,9 +176,10 @@ class Insert(Subtask):
             return "the gear did not go down the peg (it would have been let go on top of it)"
         return ""
 
-    def off_course(self, info, finished):
+    def off_course(self, scene, finished):
         """A controller that leads the gear away from the peg, or stops with it in the hand and off the peg, would
         leave it where no controller may start: the insertion's termination condition."""
+        info = scene.info()
         if not info["gear_grasped"] or info["gear_inserted"]:
             return ""
         if info["radial_offset"] > OFF_COURSE_RADIUS:
