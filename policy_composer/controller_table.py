@@ -138,6 +138,12 @@ def evaluate_table(kinds: list[str], sources, trials: int, first_seed: int = 0, 
     return rows
 
 
+def table_row(kind: str, row: dict[str, Cell]) -> str:
+    """One kind's markdown row of Table I: each cell with its interval, then the paper's."""
+    paper = PAPER.get(kind, {})
+    return f"| {kind} | " + " | ".join(f"{row[c]}; paper {paper.get(c, '-')}" for c in SUBTASK_COLUMNS) + " |"
+
+
 def write_table(rows: dict[str, dict[str, Cell]], out: Path, notes: dict[str, str] | None = None) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     with atomic.replacing(out / "controllers.csv") as tmp, open(tmp, "w", newline="") as f:
@@ -151,10 +157,7 @@ def write_table(rows: dict[str, dict[str, Cell]], out: Path, notes: dict[str, st
              "Each cell: ours, with the Wilson 95% interval; then the paper's. `*`: stopped for safety. `-`: not run.",
              "",
              "| controller | pick | move | insert | full task |", "|---|---|---|---|---|"]
-    for kind, row in rows.items():
-        paper = PAPER.get(kind, {})
-        cells = [f"{row[c]}; paper {paper.get(c, '-')}" for c in SUBTASK_COLUMNS]
-        lines.append(f"| {kind} | " + " | ".join(cells) + " |")
+    lines += [table_row(kind, row) for kind, row in rows.items()]
     lines += ["", "## Failures", ""]
     for kind, row in rows.items():
         for column, cell in row.items():

@@ -19,8 +19,7 @@ from policy_composer.composition import (
     progressive,
     sequence_counts,
 )
-from policy_composer.controller_table import PAPER as PAPER_TABLE
-from policy_composer.controller_table import SUBTASK_COLUMNS
+from policy_composer.controller_table import Cell, table_row
 from policy_composer.data import atomic
 from policy_composer.pipeline import StageRecord
 from policy_composer.selector.compose import ComposedEpisode
@@ -105,20 +104,13 @@ def _header(profile, records: dict[str, StageRecord], wall_seconds: float) -> st
 
 
 def _table_one(records, composed: list[ComposedEpisode], knocked: list[ComposedEpisode], link) -> str:
-    rows = records["table"].facts["rows"]
-
-    def cell(kind: str, column: str) -> str:
-        ok, n, stops = rows[kind][column]
-        return rate(ok, n) + (f" ({stops}*)" if stops else "")
-
+    facts = records["table"].facts["rows"]  # kind -> column -> [successes, trials, safety stops]
+    rows = {kind: {c: Cell(*counts) for c, counts in row.items()} for kind, row in facts.items()}
     lines = ["## Table I: each controller on each subtask", "",
              "Each cell: ours, with the Wilson 95% interval; then the paper's. `*`: stopped for safety. `-`: not run. "
              f"Start states, failures: [controllers.md]({link('table', 'controllers.md')}).", "",
              "| controller | pick | move | insert | full task |", "|---|---|---|---|---|"]
-    for kind in rows:
-        paper = PAPER_TABLE.get(kind, {})
-        lines.append(f"| {kind} | " + " | ".join(f"{cell(kind, c)}; paper {paper.get(c, '-')}" for c in SUBTASK_COLUMNS)
-                     + " |")
+    lines += [table_row(kind, row) for kind, row in rows.items()]
     first = composed[:10]
     lines.append(f"| composed (selector) | - | - | - | {rate(sum(e.success for e in first), len(first))}; "
                  f"paper {PAPER_COMPOSED} |")
