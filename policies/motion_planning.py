@@ -5,8 +5,8 @@ Free-space motions are planned in joint space with OMPL's RRT-Connect against th
 retreat are straight TCP lines solved by IK. The plan is made once, when the controller starts, from the
 scene as it is then: the controllers are open loop, as the paper's planner was. The pick-up perceives the
 gear's position with an error along the fingers, so the gear sits in the hand off-centre by up to
-`max_grasp_offset` (about the hole's diameter); carrying and insertion assume a centred grasp, so insertion
-fails when the offset exceeds the peg's clearance, as the paper's did.
+`max_grasp_offset` (about the hole's diameter); the carry assumes a centred grasp, and the insertion, which
+cannot see the offset, feels for the hole (`Insert.search`).
 """
 
 from __future__ import annotations

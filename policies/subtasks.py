@@ -37,7 +37,14 @@ RETREAT_HEIGHT = 0.10
 PLACE_XY = (0.0, -0.30)  # where the re-grasp puts the gear down: the middle of the gear's start area on the table
 PLACE_DROP = 0.005  # the gear's bottom above the table when the re-grasp lets go (m)
 CLEAR_HEIGHT = 0.05  # the re-grasp first lifts the gear straight up this far, clear of the peg (m)
-OFF_COURSE_RADIUS = PRE_INSERT_RADIUS + 0.005  # an insertion that takes the gear this far off the peg's axis stops (m)
+SEARCH_STEP = 0.004  # the insertion's guesses at the gear's offset along the fingers are this far apart (m)
+SEARCH_CLEARANCE = 0.008  # between guesses, the gear's bottom goes back up this far above the peg's top (m)
+# An insertion that takes the gear this far off the peg's axis stops (m): past the pre-insertion tolerance and the
+# farthest wrong guess (12 mm the other way of a gear 12 mm off-centre).
+OFF_COURSE_RADIUS = 0.03
+# A probing descent is blocked when, over the last STALL_STEPS control steps, the TCP (joint positions and forward
+# kinematics only) went down less than a third of the at least STALL_DESCENT its targets went down.
+STALL_STEPS, STALL_DESCENT = 4, 0.004
 # A learned controller's steps are limited to this fraction of the joint velocity limits (see limit_step).
 STEP_SPEED_MARGIN = 0.9
 
@@ -50,6 +57,7 @@ class Waypoint:
     quat: np.ndarray | None = None
     step: float = 0.004  # TCP travel per control step on a line (m)
     settle: int = 4  # control steps holding the goal afterwards
+    probe: bool = False  # a way down that contact may block (the gear on the peg's top): the controller feels for it
 
 
 def ik_hand_down(ik: LeftArmIK, scene: SceneGeometry, p: np.ndarray,
@@ -91,7 +99,15 @@ class Subtask:
         raise NotImplementedError
 
     def waypoints(self, ik: LeftArmIK, scene: SceneGeometry, q_now: np.ndarray, grasp_offset: float) -> list[Waypoint]:
+        """The way through the subtask for a gear (to be) held `grasp_offset` along the fingers."""
         raise NotImplementedError
+
+    # Offsets (m) to assume in turn, each time a probing waypoint is blocked; () draws the pick-up's perception error.
+    search: tuple[float, ...] = ()
+
+    def retry(self, ik: LeftArmIK, scene: SceneGeometry, q_now: np.ndarray, grasp_offset: float) -> list[Waypoint]:
+        """The way from a blocked probe for the next guess (the same waypoints as the first)."""
+        return self.waypoints(ik, scene, q_now, grasp_offset)
 
     def succeeded(self, info: dict) -> tuple[bool, str]:
         raise NotImplementedError
@@ -150,23 +166,34 @@ class Move(Subtask):
 
 
 class Insert(Subtask):
-    """Open loop: the nominal grasp puts the gear's axis on the TCP, so slide the TCP down the peg's axis."""
+    """Slide the gear down the peg's axis, feeling for the hole.
+
+    Where the gear sits along the fingers is unknown without a camera, and a gear more than the clearance off the
+    peg's axis rests on its top. So the insertion assumes an offset, lines up for it and goes down; when the TCP
+    stops descending (the gear is on the peg's top), it goes back up and tries the next offset, as a fitter's hand
+    feels for a hole. Seven guesses 4 mm apart cover the pick-up's +-12 mm."""
 
     name = "insert"
     initiation = "gear grasped, held above the peg at the pre-insertion pose"
+    search = (0.0, *(sign * k * SEARCH_STEP for k in (1, 2, 3) for sign in (1, -1)))
 
     def can_start(self, scene):
         return scene.info()["gear_at_peg"]
 
-    def waypoints(self, ik, scene, q_now, grasp_offset):
-        tcp, top, h = scene.tcp(), scene.peg_top(), scene.grasp_height
+    def waypoints(self, ik, scene, q_now, grasp_offset, clearance=CARRY_CLEARANCE):
+        # The TCP over the peg's axis, shifted along the fingers so that a gear `grasp_offset` off-centre is on it.
+        tcp, top, h = scene.tcp(), scene.peg_top() + scene.finger_dir() * grasp_offset, scene.grasp_height
         quat, _ = ik_hand_down(ik, scene, tcp, q_now)
-        above = np.array([top[0], top[1], max(tcp[2], top[2] + CARRY_CLEARANCE + h)])
+        above = np.array([top[0], top[1], max(tcp[2], top[2] + clearance + h)])
         release = np.array([top[0], top[1], top[2] - scene.spec.peg_height + RELEASE_HEIGHT + h])
         align = line_to(ik, q_now, above, quat, GRIPPER_CLOSED, step=0.003, settle=2)
         down = line_to(ik, align.q, release, quat, GRIPPER_CLOSED, step=0.003)
+        down.probe = True
         back = line_to(ik, down.q, release + [0, 0, RETREAT_HEIGHT], quat, GRIPPER_OPEN, step=0.006)
         return [align, down, Waypoint("hold", down.q, GRIPPER_OPEN, settle=8), back]
+
+    def retry(self, ik, scene, q_now, grasp_offset):
+        return self.waypoints(ik, scene, q_now, grasp_offset, clearance=SEARCH_CLEARANCE)
 
     def succeeded(self, info):
         return info["success"], "the gear is not seated on the peg"
@@ -253,12 +280,45 @@ class SubtaskController(ScriptedController):
         return np.concatenate([state[:7], [state[7] / 2] * 2])
 
     def plan(self, obs, seed):
-        # The pick-up perceives the gear's position with an error along the fingers: the gear will sit off-centre.
-        rng = np.random.default_rng(seed)
-        offset = rng.uniform(-self.max_grasp_offset, self.max_grasp_offset)
-        self.grasp_offset = float(offset if self.fixed_grasp_offset is None else self.fixed_grasp_offset)
-        self.waypoints = self.subtask.waypoints(self.ik, self.scene, self.q9(obs), self.grasp_offset)
-        return self.connect(obs, self.waypoints, seed)
+        self.guesses = list(self.subtask.search)
+        if self.guesses:
+            self.grasp_offset = self.guesses.pop(0)
+        else:  # the pick-up perceives the gear's position with an error along the fingers: it will sit off-centre
+            rng = np.random.default_rng(seed)
+            offset = rng.uniform(-self.max_grasp_offset, self.max_grasp_offset)
+            self.grasp_offset = float(offset if self.fixed_grasp_offset is None else self.fixed_grasp_offset)
+        self.tries = 1
+        return self._connect(obs, self.subtask.waypoints(self.ik, self.scene, self.q9(obs), self.grasp_offset), seed)
+
+    def _connect(self, obs, waypoints: list[Waypoint], seed: int | None) -> list[Segment]:
+        """connect(), noting the commanded TCP heights of the probing segments (for `blocked`)."""
+        self.waypoints, self._heights = waypoints, []
+        segments = self.connect(obs, waypoints, seed)
+        self._probe_z = {k: self.ik.tcp_positions(s.q)[:, 2]
+                         for k, (s, wp) in enumerate(zip(segments, waypoints)) if wp.probe}
+        return segments
+
+    def next_command(self, obs):
+        if self.guesses and self.blocked(obs):  # back up and line up for the next guess
+            self.grasp_offset, self.tries = self.guesses.pop(0), self.tries + 1
+            self.segments = self._connect(obs, self.subtask.retry(self.ik, self.scene, self.q9(obs),
+                                                                  self.grasp_offset), None)
+            self._k, self._t = 0, 0
+        return super().next_command(obs)
+
+    def blocked(self, obs) -> bool:
+        """Whether, on a probing segment, the TCP went down less than a third of what it was commanded to over the
+        last STALL_STEPS steps (and at least STALL_DESCENT): something holds it up."""
+        k, t = self._k, self._t
+        if k not in self._probe_z or not 0 < t < len(self.segments[k].q):
+            self._heights = []
+            return False
+        self._heights.append(float(obs["extra"]["tcp_pose"][0, 2]))
+        if len(self._heights) <= STALL_STEPS:
+            return False
+        commanded = self._probe_z[k][t - 1 - STALL_STEPS] - self._probe_z[k][t - 1]
+        measured = self._heights[-1 - STALL_STEPS] - self._heights[-1]
+        return commanded >= STALL_DESCENT and measured < commanded / 3
 
     def connect(self, obs, waypoints: list[Waypoint], seed: int | None) -> list[Segment]:
         raise NotImplementedError

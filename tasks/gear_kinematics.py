@@ -42,6 +42,15 @@ class LeftArmIK:
             active_qmask=ARM_MASK, max_iterations=200)
         return np.asarray(qpos), bool(ok)
 
+    def tcp_positions(self, q7: np.ndarray) -> np.ndarray:
+        """World TCP positions (N, 3) of arm configurations q7 (N, 7), fingers open."""
+        base = self.base()
+        out = np.empty((len(q7), 3))
+        for i, q in enumerate(np.asarray(q7, dtype=float)):
+            self._model.compute_forward_kinematics(np.concatenate([q[:7], [0.04, 0.04]]))
+            out[i] = (base * self._model.get_link_pose(self._tcp_index)).p
+        return out
+
     def solve_hand_down(self, p: np.ndarray, finger_dir: np.ndarray,
                         q_seed: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """(quat, q) putting the TCP at p with the hand down. The gripper is symmetric, so of the two finger
