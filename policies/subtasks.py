@@ -37,6 +37,8 @@ RETREAT_HEIGHT = 0.10
 PLACE_XY = (0.0, -0.30)  # where the re-grasp puts the gear down: the middle of the gear's start area on the table
 PLACE_DROP = 0.005  # the gear's bottom above the table when the re-grasp lets go (m)
 CLEAR_HEIGHT = 0.05  # the re-grasp first lifts the gear straight up this far, clear of the peg (m)
+# A gear let go higher up the peg than this (its bottom above the plate) can stick there, caught on the peg (m).
+RELEASE_HEIGHT_MAX = RELEASE_HEIGHT + 0.008
 SEARCH_STEP = 0.004  # the insertion's guesses at the gear's offset along the fingers are this far apart (m)
 SEARCH_CLEARANCE = 0.008  # between guesses, the gear's bottom goes back up this far above the peg's top (m)
 # An insertion that takes the gear this far off the peg's axis stops (m): past the pre-insertion tolerance and the
@@ -201,6 +203,9 @@ class Insert(Subtask):
     def release_blocked(self, info):
         if info["gear_grasped"] and not info["gear_inserted"]:
             return "the gear did not go down the peg (it would have been let go on top of it)"
+        if info["gear_grasped"] and info["height_above_base"] > RELEASE_HEIGHT_MAX:
+            return (f"the gear is only part-way down the peg ({1000 * info['height_above_base']:.0f} mm above the "
+                    f"plate; it would have been let go where it sticks)")
         return ""
 
     def off_course(self, scene, finished):

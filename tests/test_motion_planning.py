@@ -221,3 +221,17 @@ def test_a_learned_insertion_that_leads_the_gear_away_backs_off_with_it(state_en
         assert wanders.outcome is Outcome.FAILED and wanders.reason.startswith(f"backed off: {reason}"), wanders.reason
         assert wanders._steps <= max_steps and (max_steps == 2 or wanders._steps < 15)  # stopped, not run out
         assert info["gear_grasped"] and info["gear_at_peg"] and info["radial_offset"] < OFF_COURSE_RADIUS
+
+
+def test_an_insertion_letting_go_part_way_down_the_peg_backs_off_instead(state_env, monkeypatch):
+    """The CNN let go of gears 3 mm below the peg's top, where they stuck: the release guard wants the gear down."""
+    import policy_composer.policies.subtasks as subtasks
+
+    monkeypatch.setattr(subtasks, "RELEASE_HEIGHT", 0.030)  # this insertion opens the gripper 30 mm above the plate
+    obs, _ = state_env.reset(seed=0, options={"start": "pre_insertion"})
+    insert = MotionPlanningController(state_env, SUBTASKS["insert"])
+    obs = run_activation(state_env, insert, obs, seed=0)
+    info = insert.scene.info()
+    assert insert.outcome is Outcome.FAILED, insert.reason
+    assert insert.reason.startswith("backed off: the gear is only part-way down the peg"), insert.reason
+    assert info["gear_grasped"] and info["gear_at_peg"] and insert.can_start(obs)
