@@ -64,17 +64,18 @@ def start_state(env, seed: int, subtask: str, max_steps: int = 300):
 
 
 def _expert_until(env, seed: int, subtask: str, max_steps: int):
-    """Run the open-loop expert from the reset until its phase is where `subtask` starts (None if it never is)."""
+    """Run the open-loop expert from the reset until its phase is where `subtask` starts (None if it never is).
+    Nothing renders on the way: the expert reads the scene, not the cameras."""
     from policy_composer.tasks.gear_expert import ExpertConfig, GearAssemblyExpert
 
-    obs, _ = env.reset(seed=seed)
+    env.reset(seed=seed)
     expert = GearAssemblyExpert(env, ExpertConfig(closed_loop=False))
     expert.reset(seed)
     u = env.unwrapped
     for _ in range(max_steps):
         if expert.phase == START_PHASE[subtask]:
-            return obs
-        obs, *_ = env.step(u.flat_to_dict_action(expert.act(obs)))
+            return u.observe()
+        u.step_unobserved(u.flat_to_dict_action(expert.act()))
     return None
 
 

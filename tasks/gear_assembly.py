@@ -251,6 +251,17 @@ class GearAssemblyEnv(BaseEnv):
         self._last_obs = obs
         return obs, info
 
+    def step_unobserved(self, action) -> None:
+        """A control step without an observation: physics only, no camera renders. For driving the scene where no
+        one looks (the scripted expert's pick-up before a controller's start state); `observe` ends it."""
+        self._step_action(action)
+        self._elapsed_steps += 1
+
+    def observe(self) -> dict:
+        """The observation of the scene as it is now (after `step_unobserved`)."""
+        self._last_obs = self.get_obs(self.get_info())
+        return self._last_obs
+
     def knock_gear_out(self) -> None:
         """Knock the gear out of the gripper: it lands flat somewhere else on the table, at rest."""
         with torch.device(self.device):
