@@ -28,7 +28,7 @@ from policy_composer.policies.arm import (
     np0,
 )
 from policy_composer.policies.planning import VELOCITY_LIMIT, PlanningError
-from policy_composer.tasks.gear_assembly import CARRY_CLEARANCE, PRE_INSERT_RADIUS
+from policy_composer.tasks.gear_assembly import CARRY_CLEARANCE
 from policy_composer.tasks.gear_kinematics import LeftArmIK
 
 PRE_GRASP_HEIGHT = 0.08  # TCP above the grasp point before descending (m)
@@ -96,6 +96,8 @@ def line_to(ik: LeftArmIK, q_from: np.ndarray, p: np.ndarray, quat: np.ndarray, 
 class Subtask:
     name = ""
     initiation = ""
+    # Offsets (m) to assume in turn, each time a probing waypoint is blocked; () draws the pick-up's perception error.
+    search: tuple[float, ...] = ()
 
     def can_start(self, scene: SceneGeometry) -> bool:
         raise NotImplementedError
@@ -103,9 +105,6 @@ class Subtask:
     def waypoints(self, ik: LeftArmIK, scene: SceneGeometry, q_now: np.ndarray, grasp_offset: float) -> list[Waypoint]:
         """The way through the subtask for a gear (to be) held `grasp_offset` along the fingers."""
         raise NotImplementedError
-
-    # Offsets (m) to assume in turn, each time a probing waypoint is blocked; () draws the pick-up's perception error.
-    search: tuple[float, ...] = ()
 
     def retry(self, ik: LeftArmIK, scene: SceneGeometry, q_now: np.ndarray, grasp_offset: float) -> list[Waypoint]:
         """The way from a blocked probe for the next guess (the same waypoints as the first)."""
