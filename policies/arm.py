@@ -109,6 +109,10 @@ class LeftArmController(Controller):
         """Judge the finished activation: (success, reason if not)."""
         return True, ""
 
+    def remark(self) -> str:
+        """What the finished activation did that its outcome does not say (for the decision log; "" if nothing)."""
+        return ""
+
     # ------------------------------------------------------------ the interface
     def reset(self, obs, seed: int | None = None) -> None:
         self.outcome, self.reason = Outcome.RUNNING, ""
@@ -125,7 +129,8 @@ class LeftArmController(Controller):
             if cmd is None:
                 backed_off = self._back_off is not None
                 ok, why = (False, self._back_off_reason) if backed_off else self.succeeded(self.scene.info())
-                self.outcome, self.reason = (Outcome.DONE, "") if ok else (Outcome.FAILED, why)
+                self.outcome = Outcome.DONE if ok else Outcome.FAILED
+                self.reason = "; ".join(r for r in ("" if ok else why, self.remark()) if r)
             else:
                 q, gripper = cmd
                 violation = self.safety_violation(q)

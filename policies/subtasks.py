@@ -272,6 +272,7 @@ class SubtaskController(ScriptedController):
         self.max_grasp_offset = max_grasp_offset
         self.fixed_grasp_offset = grasp_offset  # set: every pick is off by exactly this much (tests, tables)
         self.grasp_offset = 0.0
+        self.tries = 0  # how many offsets the last activation tried (Subtask.search)
 
     def can_start(self, obs) -> bool:
         return self.subtask.can_start(self.scene)
@@ -309,6 +310,11 @@ class SubtaskController(ScriptedController):
                                                                   self.grasp_offset), None)
             self._k, self._t = 0, 0
         return super().next_command(obs)
+
+    def remark(self):
+        if self.tries < 2:
+            return ""
+        return f"felt for the hole: {self.tries} guesses, the last {1000 * self.grasp_offset:+.0f} mm along the fingers"
 
     def blocked(self, obs) -> bool:
         """Whether, on a probing segment, the TCP went down less than a third of what it was commanded to over the

@@ -82,6 +82,7 @@ def test_the_insertion_feels_for_the_hole_of_a_gear_held_off_centre(state_env):
     outcome, reason, tries, info, _ = results[len(SUBTASKS["insert"].search)]
     assert outcome is Outcome.DONE and info["success"], reason
     assert 1 < tries < len(SUBTASKS["insert"].search)  # the first guess (a centred gear) was blocked
+    assert reason.startswith(f"felt for the hole: {tries} guesses"), reason  # the decision log says so
 
 
 def test_the_insertion_search_reaches_every_offset_the_pick_up_leaves(state_env):
