@@ -167,3 +167,23 @@ def test_the_right_forearm_camera_sees_the_gear_come_down_onto_the_peg(rgb_env):
     assert expert.phase == "insert"
     above_peg = obs["sensor_data"]["right_forearm"]["rgb"].float()
     assert (above_peg - first).abs().mean() > 3.0  # 7.7 here; 0.05 with the first mount, which saw nothing
+
+
+def test_the_expert_s_unrecorded_pick_up_renders_nothing_but_the_start_state(rgb_env, monkeypatch):
+    """A controller's start state after the expert's pick-up (Table I's move column, the move's rollouts) is stepped
+    without observations: one render, at the end; the physics is that of env.step's (the same state)."""
+    from policy_composer.controller_table import start_state
+
+    u = rgb_env.unwrapped
+    renders = []
+    get_obs = u.get_obs
+    monkeypatch.setattr(u, "get_obs", lambda *a, **k: renders.append(1) or get_obs(*a, **k))
+    obs = start_state(rgb_env, 2, "move")
+    assert len(renders) == 2  # the reset's and the start state's
+    assert bool(u.evaluate()["gear_lifted"][0]) and obs["sensor_data"]["head"]["rgb"].shape[1:3] == (64, 96)
+    unobserved = torch.cat([u.gear.pose.raw_pose, u.joint_state()], -1)
+    steps = int(u.elapsed_steps[0])
+    monkeypatch.setattr(u, "step_unobserved", lambda action: rgb_env.step(action))
+    start_state(rgb_env, 2, "move")
+    assert int(u.elapsed_steps[0]) == steps
+    torch.testing.assert_close(torch.cat([u.gear.pose.raw_pose, u.joint_state()], -1), unobserved)
