@@ -46,7 +46,7 @@ SEARCH_CLEARANCE = 0.008  # between guesses, the gear's bottom goes back up this
 OFF_COURSE_RADIUS = 0.03
 # A probing descent is blocked when, over the last STALL_STEPS control steps, the TCP (joint positions and forward
 # kinematics only) went down less than a third of the at least STALL_DESCENT its targets went down.
-STALL_STEPS, STALL_DESCENT = 4, 0.004
+STALL_STEPS, STALL_DESCENT = 2, 0.004
 # A learned controller's steps are limited to this fraction of the joint velocity limits (see limit_step).
 STEP_SPEED_MARGIN = 0.9
 
