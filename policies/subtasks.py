@@ -28,7 +28,7 @@ from policy_composer.policies.arm import (
     np0,
 )
 from policy_composer.policies.planning import VELOCITY_LIMIT, PlanningError
-from policy_composer.tasks.gear_assembly import CARRY_CLEARANCE
+from policy_composer.tasks.gear_assembly import CARRY_CLEARANCE, PRE_INSERT_RADIUS
 from policy_composer.tasks.gear_kinematics import LeftArmIK
 
 PRE_GRASP_HEIGHT = 0.08  # TCP above the grasp point before descending (m)
@@ -42,8 +42,10 @@ RELEASE_HEIGHT_MAX = RELEASE_HEIGHT + 0.008
 SEARCH_STEP = 0.004  # the insertion's guesses at the gear's offset along the fingers are this far apart (m)
 SEARCH_CLEARANCE = 0.008  # between guesses, the gear's bottom goes back up this far above the peg's top (m)
 # An insertion that takes the gear this far off the peg's axis stops (m): past the pre-insertion tolerance and the
-# farthest wrong guess (12 mm the other way of a gear 12 mm off-centre).
+# farthest wrong guess (12 mm the other way of a gear 12 mm off-centre), which lands the gear on the peg's top;
+# below the top, it stops nearer: a gear pushed down beside the peg tips in the fingers and falls.
 OFF_COURSE_RADIUS = 0.03
+BESIDE_PEG_RADIUS = PRE_INSERT_RADIUS + 0.005
 # A probing descent is blocked when, over the last STALL_STEPS control steps, the TCP (joint positions and forward
 # kinematics only) went down less than a third of the at least STALL_DESCENT its targets went down.
 STALL_STEPS, STALL_DESCENT = 2, 0.004
@@ -213,8 +215,10 @@ class Insert(Subtask):
         info = scene.info()
         if not info["gear_grasped"] or info["gear_inserted"]:
             return ""
-        if info["radial_offset"] > OFF_COURSE_RADIUS:
-            return f"the gear was led away from the peg ({1000 * info['radial_offset']:.0f} mm off its axis)"
+        radial, below_top = info["radial_offset"], info["height_above_base"] < scene.spec.peg_height - 0.003
+        if radial > OFF_COURSE_RADIUS or (below_top and radial > BESIDE_PEG_RADIUS):
+            return (f"the gear was led away from the peg ({1000 * radial:.0f} mm off its axis"
+                    f"{', below its top' if below_top else ''})")
         return "it stopped with the gear in the hand, off the peg" if finished else ""
 
     def back_off(self, ik, scene, q_now):
