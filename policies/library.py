@@ -17,7 +17,8 @@ from policy_composer.policies.registry import LibraryError, get_kind, kind_of, k
 # 3: plans are bounded by collision checks, not seconds, and do not depend on earlier plans.
 # 4: the re-grasp (mp_regrasp); an insertion that leads the gear away from the peg, or ends holding it off the peg,
 #    backs off.
-# 5: the MP and DMP insertions feel for the hole (Insert.search).
+# 5: the MP and DMP insertions feel for the hole (Insert.search); an insertion lets go only once the gear is down the
+#    peg, and is off course 20 mm off the peg's axis below its top (30 mm above it).
 LIBRARY_REVISION = 5
 
 __all__ = ["LIBRARY_REVISION", "LeRobotSource", "LibraryError", "LibrarySources", "all_names", "build_library",
