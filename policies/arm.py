@@ -30,6 +30,9 @@ from policy_composer.tasks.gear_kinematics import JOINT_HIGH, JOINT_LOW, plate_d
 
 GRIPPER_OPEN, GRIPPER_CLOSED = 1.0, -1.0
 RELEASE_HEIGHT = 0.012  # gear bottom above the plate when the gripper opens (m)
+# Steps a controller did not plan (a learned policy's, the way into a back-off) are limited to this fraction of the
+# joint velocity limits.
+STEP_SPEED_MARGIN = 0.9
 
 
 class Outcome(str, Enum):
@@ -72,6 +75,11 @@ class SceneGeometry:
 
     def tcp(self) -> np.ndarray:
         return np0(self.env.left_arm.tcp.pose.p)
+
+    def gear_tilt(self) -> float:
+        """Degrees between the gear's axis and the vertical."""
+        up = float(self.env.gear.pose.to_transformation_matrix()[0, 2, 2])
+        return float(np.degrees(np.arccos(np.clip(up, -1.0, 1.0))))
 
     def peg_top(self) -> np.ndarray:
         return np0(self.env.peg_top.p)
@@ -156,7 +164,10 @@ class LeftArmController(Controller):
                    or self.subtask.off_course(self.scene, cmd is None))
             if not why:
                 return cmd
-            self._back_off = list(self.subtask.back_off(self.ik, self.scene, np0(self.env.left_arm.robot.get_qpos())))
+            path = self.subtask.back_off(self.ik, self.scene, np0(self.env.left_arm.robot.get_qpos()))
+            # The path starts at the measured joints, which lag the last command where the arm pushed against
+            # something: the targets first go back to them at a safe speed instead of jumping.
+            self._back_off = [*ramp(self._last, path[0], self.rate_hz)[:-1], *path] if len(path) else []
             self._back_off_reason = f"{'backed off' if self._back_off else 'kept the gear (no way back)'}: {why}"
         return (self._back_off.pop(0), GRIPPER_CLOSED) if self._back_off else None
 
@@ -186,6 +197,14 @@ class LeftArmController(Controller):
     def describe(self, obs) -> str:
         info = self.scene.info()
         return ", ".join(f"{k}={info[k]}" for k in ("gear_grasped", "gear_lifted", "gear_at_peg", "success"))
+
+
+def ramp(q_from: np.ndarray, q_to: np.ndarray, rate_hz: float) -> np.ndarray:
+    """Joint targets (T, 7) from `q_from` (left out) to `q_to` (the last), evenly spaced so that no joint moves faster
+    than `STEP_SPEED_MARGIN` of the Panda's velocity limit; T >= 1."""
+    step = np.asarray(q_to, dtype=np.float64) - q_from
+    n = max(1, int(np.ceil(np.max(np.abs(step) * rate_hz / (STEP_SPEED_MARGIN * VELOCITY_LIMIT)))))
+    return q_from + step * (np.arange(1, n + 1) / n)[:, None]
 
 
 def run_activation(env, controller: Controller, obs, seed: int | None = None, max_steps: int = 400):

@@ -19,7 +19,9 @@ from policy_composer.policies.registry import LibraryError, get_kind, kind_of, k
 #    backs off.
 # 5: the MP and DMP insertions feel for the hole (Insert.search); an insertion lets go only once the gear is down the
 #    peg, and is off course 20 mm off the peg's axis below its top (30 mm above it).
-LIBRARY_REVISION = 5
+# 6: an insertion is off course once the gear tips past INSERT_TILT_DEG in the fingers; a back-off first brings the
+#    commands back to the measured joints at a safe speed (the CNN's back-offs were stopped for safety).
+LIBRARY_REVISION = 6
 
 __all__ = ["LIBRARY_REVISION", "LeRobotSource", "LibraryError", "LibrarySources", "all_names", "build_library",
            "cameras_needed", "model_ids", "names_of_kind"]

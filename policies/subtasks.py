@@ -21,6 +21,7 @@ from policy_composer.policies.arm import (
     GRIPPER_CLOSED,
     GRIPPER_OPEN,
     RELEASE_HEIGHT,
+    STEP_SPEED_MARGIN,
     LeftArmController,
     SceneGeometry,
     ScriptedController,
@@ -28,7 +29,7 @@ from policy_composer.policies.arm import (
     np0,
 )
 from policy_composer.policies.planning import VELOCITY_LIMIT, PlanningError
-from policy_composer.tasks.gear_assembly import CARRY_CLEARANCE, PRE_INSERT_RADIUS
+from policy_composer.tasks.gear_assembly import CARRY_CLEARANCE, INSERT_TILT_DEG, PRE_INSERT_RADIUS
 from policy_composer.tasks.gear_kinematics import LeftArmIK
 
 PRE_GRASP_HEIGHT = 0.08  # TCP above the grasp point before descending (m)
@@ -49,8 +50,6 @@ BESIDE_PEG_RADIUS = PRE_INSERT_RADIUS + 0.005
 # A probing descent is blocked when, over the last STALL_STEPS control steps, the TCP (joint positions and forward
 # kinematics only) went down less than a third of the at least STALL_DESCENT its targets went down.
 STALL_STEPS, STALL_DESCENT = 2, 0.004
-# A learned controller's steps are limited to this fraction of the joint velocity limits (see limit_step).
-STEP_SPEED_MARGIN = 0.9
 
 @dataclass
 class Waypoint:
@@ -215,6 +214,9 @@ class Insert(Subtask):
         info = scene.info()
         if not info["gear_grasped"] or info["gear_inserted"]:
             return ""
+        tilt = scene.gear_tilt()
+        if tilt > INSERT_TILT_DEG:  # pressed against the peg or the plate: pushing on would turn it over
+            return f"the gear tipped {tilt:.0f} degrees in the fingers"
         radial, below_top = info["radial_offset"], info["height_above_base"] < scene.spec.peg_height - 0.003
         if radial > OFF_COURSE_RADIUS or (below_top and radial > BESIDE_PEG_RADIUS):
             return (f"the gear was led away from the peg ({1000 * radial:.0f} mm off its axis"

@@ -51,7 +51,8 @@ PROFILES = {
                      table_trials=3, compose_episodes=10, knockout_episodes=3, mdp_episodes_19=1000,
                      mdp_episodes_100=30, mdp_levels=(0.0, 0.2, 0.4, 0.6, 0.8),
                      holds="The MDP experiments, the MP row of Table I and the goal-score comparison between cameras "
-                           "hold at this size (the MP row needs no training; the MDP runs 1000 episodes, and 30 in each of the 5x5 noise cells). "
+                           "hold at this size (the MP row needs no training; the MDP runs 1000 episodes, and 30 in "
+                           "each of the 5x5 noise cells). "
                            "The CNN policy (20 demonstrations, 80 epochs) and the world model (4 rollouts per "
                            "controller) are far below the paper's sizes, and Table I's cells have 3 trials, so the "
                            "CNN and composed rows show that the pipeline works, not how well: run `--profile paper` "

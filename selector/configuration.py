@@ -36,7 +36,9 @@ class DynamicsConfig:
 
     controller: str = ""
     latent_dim: int = 32  # the VAE's
-    frame_skip: int = option(5, "control steps per dynamics step (one selector look-ahead step)", minimum=1)
+    # n = 10 steps of 15 look 150 control steps ahead: as long as an insertion that feels for the hole takes, so the
+    # selector sees where an insertion ends (seated, or backed off), not only how fast it starts down.
+    frame_skip: int = option(15, "control steps per dynamics step (one selector look-ahead step)", minimum=1)
     hidden_dim: int = 256
     num_mixtures: int = option(5, "mixture components of each dynamics model", minimum=1)
     decoder_weight: float = 1.0  # the shared decoder: the predicted latent must decode to the real next image

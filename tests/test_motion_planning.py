@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import sapien
 
-from policy_composer.policies.arm import Outcome, ScriptedController, Segment, run_activation
+from policy_composer.policies.arm import STEP_SPEED_MARGIN, Outcome, ScriptedController, Segment, run_activation
 from policy_composer.policies.base import InitiationError
 from policy_composer.policies.motion_planning import MotionPlanningController
 from policy_composer.policies.planning import (
@@ -17,7 +17,7 @@ from policy_composer.policies.planning import (
     plan_rrt_connect,
     time_parameterize,
 )
-from policy_composer.policies.subtasks import STEP_SPEED_MARGIN, SUBTASKS, Insert, LearnedController
+from policy_composer.policies.subtasks import SUBTASKS, Insert, LearnedController
 from policy_composer.tasks.gear_assembly import LEFT_START_QPOS
 
 
@@ -236,3 +236,55 @@ def test_an_insertion_letting_go_part_way_down_the_peg_backs_off_instead(state_e
     assert insert.outcome is Outcome.FAILED, insert.reason
     assert insert.reason.startswith("backed off: the gear is only part-way down the peg"), insert.reason
     assert info["gear_grasped"] and info["gear_at_peg"] and insert.can_start(obs)
+
+
+
+def test_a_back_off_from_commands_the_arm_could_not_follow_ramps_instead_of_stopping(state_env):
+    """A policy pressing the gear against the peg leaves its commands ahead of the arm (the CNN's were, by 2.3 rad/s
+    at joint 2): the back-off starts from the measured joints, so its targets first go back there at a safe speed;
+    jumping there was a safety stop that left the gear turned over in the fingers."""
+    from policy_composer.policies.arm import ramp
+
+    class Pressed(Insert):  # the insertion is off course from the first step on
+        def off_course(self, scene, finished):
+            return "pressed against the peg"
+
+    class Holds(LearnedController):
+        def predict(self, obs):  # as if held back: its commands 0.3 rad ahead of joint 2
+            self._last = self.left_qpos(obs) + [0, 0.3, 0, 0, 0, 0, 0]
+            return self._last, -1.0
+
+    obs, _ = state_env.reset(seed=7, options={"start": "pre_insertion"})
+    holds = Holds(state_env, Pressed(), "holds_insert")
+    obs = run_activation(state_env, holds, obs, seed=7)
+    assert holds.outcome is Outcome.FAILED and holds.reason == "backed off: pressed against the peg", holds.reason
+
+    rate = state_env.unwrapped.control_freq
+    steps = ramp(np.zeros(7), np.array([0, 0.3, 0, 0, 0, 0, -0.1]), rate)
+    speeds = np.abs(np.diff(np.vstack([np.zeros(7), steps]), axis=0)) * rate
+    assert len(steps) > 1 and np.all(speeds <= STEP_SPEED_MARGIN * VELOCITY_LIMIT + 1e-9)
+    np.testing.assert_allclose(steps[-1], [0, 0.3, 0, 0, 0, 0, -0.1])
+
+
+def test_an_insertion_that_tips_the_gear_in_the_fingers_backs_off(state_env):
+    """Pushed down beside the peg, a gear tips in the fingers and, pushed on, turns over, where no re-grasp can lay
+    it flat again: the insertion's termination condition catches the tilt."""
+    from policy_composer.policies.arm import np0
+    from policy_composer.tasks.gear_assembly import INSERT_TILT_DEG
+
+    class Presses(LearnedController):
+        def reset(self, obs, seed=None):
+            super().reset(obs, seed)
+            self.start_tcp, self.quat = self.scene.tcp(), np0(self.ik.arm.tcp.pose.q)
+
+        def predict(self, obs):  # 15 mm off the peg's axis, then 4 mm a step down
+            target = self.start_tcp + self.scene.finger_dir() * 0.015 - [0, 0, 0.004 * self._steps]
+            q, _ = self.ik.solve(sapien.Pose(target, self.quat), np0(self.ik.arm.robot.get_qpos()))
+            return q[:7], -1.0
+
+    obs, _ = state_env.reset(seed=0, options={"start": "pre_insertion"})
+    presses = Presses(state_env, SUBTASKS["insert"], "presses_insert", max_steps=40)
+    obs = run_activation(state_env, presses, obs, seed=0)
+    assert presses.outcome is Outcome.FAILED, presses.reason
+    assert presses.reason.startswith("backed off: the gear tipped"), presses.reason
+    assert presses.scene.info()["gear_grasped"] and presses.scene.gear_tilt() < 3 * INSERT_TILT_DEG
