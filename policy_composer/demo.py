@@ -49,10 +49,10 @@ PROFILES = {
     "quick": Profile("quick", resolution=64, image_size=64, insertion_demos=20, full_task_demos=7, train_demos=5,
                      dmp_episodes=5, rollouts=4, cnn_epochs=80, vae_epochs=15, dynamics_epochs=30, goal_epochs=30,
                      table_trials=3, compose_episodes=10, knockout_episodes=3, mdp_episodes_19=1000,
-                     mdp_episodes_100=30, mdp_levels=(0.0, 0.2, 0.4, 0.6, 0.8),
+                     mdp_episodes_100=30,
                      holds="The MDP experiments, the MP row of Table I and the goal-score comparison between cameras "
                            "hold at this size (the MP row needs no training; the MDP runs 1000 episodes, and 30 in "
-                           "each of the 5x5 noise cells). "
+                           "each of the 9x9 noise cells). "
                            "The CNN policy (20 demonstrations, 80 epochs) and the world model (4 rollouts per "
                            "controller) are far below the paper's sizes, and Table I's cells have 3 trials, so the "
                            "CNN and composed rows show that the pipeline works, not how well: run `--profile paper` "
