@@ -7,7 +7,14 @@ import numpy as np
 import pytest
 import sapien
 
-from policy_composer.policies.arm import STEP_SPEED_MARGIN, Outcome, ScriptedController, Segment, run_activation
+from policy_composer.policies.arm import (
+    STEP_SPEED_MARGIN,
+    Outcome,
+    ScriptedController,
+    Segment,
+    np0,
+    run_activation,
+)
 from policy_composer.policies.base import InitiationError
 from policy_composer.policies.motion_planning import MotionPlanningController
 from policy_composer.policies.planning import (
@@ -197,26 +204,34 @@ def test_a_learned_insertion_that_lets_go_above_the_peg_keeps_the_gear_and_fails
     assert info["gear_grasped"] and info["gear_at_peg"] and opens.can_start(obs)
 
 
+class FollowsTCP(LearnedController):
+    """A stand-in for a learned insertion: the TCP goes `path(finger_dir, step)` (m) from where it started, the hand
+    kept as it was, the gripper closed."""
+
+    def __init__(self, env, path, name: str, max_steps: int):
+        super().__init__(env, SUBTASKS["insert"], name, max_steps)
+        self.path = path
+
+    def reset(self, obs, seed=None):
+        super().reset(obs, seed)
+        self.start_tcp, self.quat = self.scene.tcp(), np0(self.ik.arm.tcp.pose.q)
+
+    def predict(self, obs):
+        target = self.start_tcp + self.path(self.scene.finger_dir(), self._steps)
+        q, _ = self.ik.solve(sapien.Pose(target, self.quat), np0(self.ik.arm.robot.get_qpos()))
+        return q[:7], -1.0
+
+
 def test_a_learned_insertion_that_leads_the_gear_away_backs_off_with_it(state_env):
     """The insertion's termination condition: a policy that carries the gear away from the peg (as a badly trained
     CNN did, 38 mm off and down beside the peg) is stopped once it is off course and brings the gear back to the
     pre-insertion pose, still holding it; one that merely runs out of steps holding the gear off the peg does too."""
-    from policy_composer.policies.arm import np0
     from policy_composer.policies.subtasks import OFF_COURSE_RADIUS
-
-    class Wanders(LearnedController):
-        def reset(self, obs, seed=None):
-            super().reset(obs, seed)
-            self.start_tcp, self.quat = self.scene.tcp(), np0(self.ik.arm.tcp.pose.q)
-
-        def predict(self, obs):  # 3 mm a step along the plate, away from the peg
-            away = self.scene.finger_dir() * 0.003 * self._steps
-            q, _ = self.ik.solve(sapien.Pose(self.start_tcp + away, self.quat), np0(self.ik.arm.robot.get_qpos()))
-            return q[:7], -1.0
 
     for max_steps, reason in ((60, "the gear was led away from the peg"), (2, "it stopped with the gear in the hand")):
         obs, _ = state_env.reset(seed=7, options={"start": "pre_insertion"})
-        wanders = Wanders(state_env, SUBTASKS["insert"], "wanders_insert", max_steps=max_steps)
+        wanders = FollowsTCP(state_env, lambda finger, k: finger * 0.003 * k,  # 3 mm a step away from the peg
+                             "wanders_insert", max_steps)
         obs = run_activation(state_env, wanders, obs, seed=7)
         info = wanders.scene.info()
         assert wanders.outcome is Outcome.FAILED and wanders.reason.startswith(f"backed off: {reason}"), wanders.reason
@@ -236,7 +251,6 @@ def test_an_insertion_letting_go_part_way_down_the_peg_backs_off_instead(state_e
     assert insert.outcome is Outcome.FAILED, insert.reason
     assert insert.reason.startswith("backed off: the gear is only part-way down the peg"), insert.reason
     assert info["gear_grasped"] and info["gear_at_peg"] and insert.can_start(obs)
-
 
 
 def test_a_back_off_from_commands_the_arm_could_not_follow_ramps_instead_of_stopping(state_env):
@@ -269,21 +283,11 @@ def test_a_back_off_from_commands_the_arm_could_not_follow_ramps_instead_of_stop
 def test_an_insertion_that_tips_the_gear_in_the_fingers_backs_off(state_env):
     """Pushed down beside the peg, a gear tips in the fingers and, pushed on, turns over, where no re-grasp can lay
     it flat again: the insertion's termination condition catches the tilt."""
-    from policy_composer.policies.arm import np0
     from policy_composer.tasks.gear_assembly import INSERT_TILT_DEG
 
-    class Presses(LearnedController):
-        def reset(self, obs, seed=None):
-            super().reset(obs, seed)
-            self.start_tcp, self.quat = self.scene.tcp(), np0(self.ik.arm.tcp.pose.q)
-
-        def predict(self, obs):  # 15 mm off the peg's axis, then 4 mm a step down
-            target = self.start_tcp + self.scene.finger_dir() * 0.015 - [0, 0, 0.004 * self._steps]
-            q, _ = self.ik.solve(sapien.Pose(target, self.quat), np0(self.ik.arm.robot.get_qpos()))
-            return q[:7], -1.0
-
     obs, _ = state_env.reset(seed=0, options={"start": "pre_insertion"})
-    presses = Presses(state_env, SUBTASKS["insert"], "presses_insert", max_steps=40)
+    presses = FollowsTCP(state_env, lambda finger, k: finger * 0.015 - [0, 0, 0.004 * k],  # 15 mm off, 4 mm a step down
+                         "presses_insert", 40)
     obs = run_activation(state_env, presses, obs, seed=0)
     assert presses.outcome is Outcome.FAILED, presses.reason
     assert presses.reason.startswith("backed off: the gear tipped"), presses.reason
