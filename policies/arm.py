@@ -228,6 +228,13 @@ class ScriptedController(LeftArmController):
     def reset(self, obs, seed: int | None = None) -> None:
         super().reset(obs, seed)
         self.segments = self.plan(obs, seed)
+        # A plan may start away from the measured joints (an arm that was pushing against something lags its last
+        # commands, and the plan's first target is solved for where the gear should be): ramp there at a safe speed.
+        first = next((s for s in self.segments if len(s.q)), None)
+        if first is not None:
+            lead = ramp(self._last, first.q[0], self.rate_hz)[:-1]
+            if len(lead):
+                self.segments.insert(0, Segment(lead, first.gripper, settle=0))
         self._k, self._t = 0, 0
 
     def next_command(self, obs):

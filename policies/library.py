@@ -21,7 +21,9 @@ from policy_composer.policies.registry import LibraryError, get_kind, kind_of, k
 #    peg, and is off course 20 mm off the peg's axis below its top (30 mm above it).
 # 6: an insertion is off course once the gear tips past INSERT_TILT_DEG in the fingers; a back-off first brings the
 #    commands back to the measured joints at a safe speed (the CNN's back-offs were stopped for safety).
-LIBRARY_REVISION = 6
+# 7: a planned activation (MP, DMP) ramps from the measured joints to its first target (an `mp_insert` after a CNN
+#    back-off jumped there and was stopped for safety).
+LIBRARY_REVISION = 7
 
 __all__ = ["LIBRARY_REVISION", "LeRobotSource", "LibraryError", "LibrarySources", "all_names", "build_library",
            "cameras_needed", "model_ids", "names_of_kind"]

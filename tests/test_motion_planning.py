@@ -8,6 +8,7 @@ import pytest
 import sapien
 
 from policy_composer.policies.arm import (
+    GRIPPER_OPEN,
     STEP_SPEED_MARGIN,
     Outcome,
     ScriptedController,
@@ -278,6 +279,30 @@ def test_a_back_off_from_commands_the_arm_could_not_follow_ramps_instead_of_stop
     speeds = np.abs(np.diff(np.vstack([np.zeros(7), steps]), axis=0)) * rate
     assert len(steps) > 1 and np.all(speeds <= STEP_SPEED_MARGIN * VELOCITY_LIMIT + 1e-9)
     np.testing.assert_allclose(steps[-1], [0, 0.3, 0, 0, 0, 0, -0.1])
+
+
+def test_a_plan_that_starts_away_from_the_measured_joints_ramps_there(state_env):
+    """After a CNN back-off the arm lags its commands, and `mp_insert`'s first target (solved for where the gear should
+    be) was a jump a safety check stopped (joint 4 at 2.4 rad/s): a planned activation now ramps to its start."""
+
+    class Planned(ScriptedController):
+        name = "planned"
+
+        def can_start(self, obs):
+            return True
+
+        def plan(self, obs, seed):
+            return [Segment((self.left_qpos(obs) + [0, 0, 0, 0.3, 0, 0, 0.2])[None], GRIPPER_OPEN, settle=2)]
+
+    obs, _ = state_env.reset(seed=3)
+    planned = Planned(state_env)
+    start = planned.left_qpos(obs)
+    obs = run_activation(state_env, planned, obs, seed=3)
+    assert planned.outcome is Outcome.DONE, planned.reason
+    targets = planned.trajectory
+    speeds = np.abs(np.diff(np.vstack([start, targets]), axis=0)) * state_env.unwrapped.control_freq
+    assert len(targets) > 2 and np.all(speeds <= STEP_SPEED_MARGIN * VELOCITY_LIMIT + 1e-9)
+    np.testing.assert_allclose(targets[-1], start + [0, 0, 0, 0.3, 0, 0, 0.2])
 
 
 def test_an_insertion_that_tips_the_gear_in_the_fingers_backs_off(state_env):
