@@ -40,7 +40,9 @@ class ControllerKind:
     # build(env, subtask, model, max_grasp_offset) -> Controller; `model` is what `load` gave (None without one)
     build: str
     load: str | None = None  # load(path) -> its trained model; None: nothing is trained
-    model_path: str | None = None  # where `train_command` writes the model by default
+    # where `train_command` writes the model by default: a file or folder, or a folder with one per subtask (the
+    # subtask's subfolder then identifies the model its controller runs)
+    model_path: str | None = None
     train_command: str = ""  # the command that trains the model, for error messages and --help
     cameras: str | None = None  # cameras(model) -> the cameras the loaded model reads; None: none
 
@@ -98,6 +100,6 @@ register_kind(ControllerKind("mp", "MP", ("pick", "move", "insert", "regrasp"), 
 register_kind(ControllerKind("dmp", "DMP", ("pick", "move", "insert"), build=f"{_P}.dmp:build",
                              load=f"{_P}.dmp:DMPLibrary.load", model_path="results/models/dmp",
                              train_command="policy-composer train dmp"))
-register_kind(ControllerKind("cnn", "CNN", ("insert",), build=f"{_P}.cnn.controller:build",
-                             load=f"{_P}.cnn.train:load_cnn_policy", cameras=f"{_P}.cnn.controller:policy_cameras",
-                             model_path="results/models/cnn_insert", train_command="policy-composer train policy"))
+register_kind(ControllerKind("cnn", "CNN", ("pick", "move", "insert"), build=f"{_P}.cnn.controller:build",
+                             load=f"{_P}.cnn.train:load_cnn_library", cameras=f"{_P}.cnn.controller:policy_cameras",
+                             model_path="results/models/cnn", train_command="policy-composer train policy"))

@@ -97,6 +97,7 @@ def line_to(ik: LeftArmIK, q_from: np.ndarray, p: np.ndarray, quat: np.ndarray, 
 class Subtask:
     name = ""
     initiation = ""
+    releases = False  # whether it ends with the gear let go (else: held, as the next subtask needs it)
     # Offsets (m) to assume in turn, each time a probing waypoint is blocked; () draws the pick-up's perception error.
     search: tuple[float, ...] = ()
 
@@ -177,6 +178,7 @@ class Insert(Subtask):
 
     name = "insert"
     initiation = "gear grasped, held above the peg at the pre-insertion pose"
+    releases = True
     search = (0.0, *(sign * k * SEARCH_STEP for k in (1, 2, 3) for sign in (1, -1)))
 
     def can_start(self, scene):
@@ -240,6 +242,7 @@ class Regrasp(Subtask):
 
     name = "regrasp"
     initiation = "gear grasped and lifted off the table, not on the peg"
+    releases = True
     holds_gear = True
 
     def can_start(self, scene):
@@ -349,8 +352,9 @@ def check_camera(env, camera: str, who: str) -> None:
 
 
 class LearnedController(LeftArmController):
-    """A closed-loop learned policy run for one subtask: it acts every step until the subtask is achieved and the
-    hand has let go, or its step budget is spent. Subclasses give `predict(obs) -> (7 joint targets, gripper)`."""
+    """A closed-loop learned policy run for one subtask: it acts every step until the subtask is achieved (and, for one
+    that releases the gear, the hand has let go), or its step budget is spent. Subclasses give
+    `predict(obs) -> (7 joint targets, gripper)`."""
 
     action_kind = "joint_targets"
 
@@ -372,7 +376,8 @@ class LearnedController(LeftArmController):
     def next_command(self, obs):
         info = self.scene.info()
         achieved = self.subtask.succeeded(info)[0]
-        if self._steps >= self.max_steps or (achieved and self._gripper > 0 and not info["gear_grasped"]):
+        let_go = self._gripper > 0 and not info["gear_grasped"]
+        if self._steps >= self.max_steps or (achieved and (let_go or not self.subtask.releases)):
             return None
         self._steps += 1
         q, gripper = self.predict(obs)

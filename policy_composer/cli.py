@@ -191,16 +191,19 @@ def cmd_mdp(args: argparse.Namespace) -> int:
 
 
 def cmd_train_policy(args: argparse.Namespace) -> int:
-    """Behaviour-clone the CNN policy on an insertion dataset."""
+    """Behaviour-clone the CNN policy of one subtask on its demonstrations."""
     import torch
 
+    from policy_composer.policies.cnn.configuration_cnn import DEMONSTRATIONS
     from policy_composer.policies.cnn.train import train_cnn_policy
 
     torch.set_num_threads(args.threads)
     config = config_from(args, CNNPolicyConfig)
+    dataset = args.dataset or _dataset(DEMONSTRATIONS[config.subtask][0])
+    out = args.out or str(Path(kinds()["cnn"].model_path) / config.subtask)
     t0 = time.time()
-    _, losses = train_cnn_policy(args.dataset, config, out=args.out)
-    print(f"trained {args.out} in {time.time() - t0:.0f} s: nll {losses[0]:.3f} -> {losses[-1]:.3f} "
+    _, losses = train_cnn_policy(dataset, config, out=out)
+    print(f"trained {out} in {time.time() - t0:.0f} s: nll {losses[0]:.3f} -> {losses[-1]:.3f} "
           f"over {len(losses)} epochs")
     return 0
 
@@ -345,14 +348,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     train = sub.add_parser("train", help="train the library's learned controllers")
     tr_sub = train.add_subparsers(dest="what", required=True)
-    tr_policy = tr_sub.add_parser("policy", help="behaviour-clone the CNN + MDN policy (cnn_insert)")
-    tr_policy.add_argument("--dataset", default=_dataset("gear-insertion-demos"))
+    tr_policy = tr_sub.add_parser("policy", help="behaviour-clone a CNN + MDN policy (cnn_pick, cnn_move, cnn_insert)")
+    tr_policy.add_argument("--dataset", help="its demonstrations (default: datasets/gear-insertion-demos for the "
+                           "insertion, datasets/gear-transport-demos for the pick-up and the move)")
     add_config_options(tr_policy, CNNPolicyConfig, {
-        "camera": "camera", "backbone": "backbone", "epochs": "epochs", "image_size": "image-size",
-        "num_mixtures": "mixtures", "action_space": "action-space", "proprioception": "proprioception",
-        "shift": "shift", "batch_size": "batch-size", "seed": "seed"})
+        "subtask": "subtask", "camera": "camera", "backbone": "backbone", "epochs": "epochs",
+        "image_size": "image-size", "num_mixtures": "mixtures", "action_space": "action-space",
+        "proprioception": "proprioception", "shift": "shift", "batch_size": "batch-size", "seed": "seed"})
     tr_policy.add_argument("--threads", type=at_least(1), default=2)
-    tr_policy.add_argument("--out", default=kinds()["cnn"].model_path)
+    tr_policy.add_argument("--out", help=f"checkpoint folder (default: {kinds()['cnn'].model_path}/SUBTASK, where the "
+                           "library's CNN model looks)")
     tr_policy.set_defaults(func=cmd_train_policy)
     tr_dmp = tr_sub.add_parser("dmp", help="fit the DMPs to the motion planner's trajectories")
     env_options(tr_dmp, grasp=False)

@@ -25,6 +25,7 @@ class Profile:
     resolution: int  # recorded camera images, pixels square
     image_size: int  # what the models see
     insertion_demos: int  # paper: 50
+    transport_demos: int  # pick-up and carry, for the CNN pick-up and move policies
     full_task_demos: int  # training plus held-out
     train_demos: int  # paper: 5
     dmp_episodes: int  # planner episodes the DMPs are fitted to
@@ -46,7 +47,7 @@ class Profile:
 
 
 PROFILES = {
-    "quick": Profile("quick", resolution=64, image_size=64, insertion_demos=20, full_task_demos=7, train_demos=5,
+    "quick": Profile("quick", resolution=64, image_size=64, insertion_demos=20, transport_demos=20, full_task_demos=7, train_demos=5,
                      dmp_episodes=5, rollouts=4, cnn_epochs=80, vae_epochs=15, dynamics_epochs=30, goal_epochs=30,
                      table_trials=3, compose_episodes=10, knockout_episodes=3, mdp_episodes_19=1000,
                      mdp_episodes_100=30,
@@ -56,13 +57,13 @@ PROFILES = {
                            "model saw, as the README measures). The CNN policy (20 demonstrations, 80 epochs) is far "
                            "below the paper's sizes and Table I's cells have 3 trials, so the CNN row shows that the "
                            "pipeline works, not how well: run `--profile paper` for that."),
-    "paper": Profile("paper", resolution=128, image_size=64, insertion_demos=50, full_task_demos=8, train_demos=5,
+    "paper": Profile("paper", resolution=128, image_size=64, insertion_demos=50, transport_demos=50, full_task_demos=8, train_demos=5,
                      dmp_episodes=5, rollouts=20, cnn_epochs=200, vae_epochs=30, dynamics_epochs=60, goal_epochs=60,
                      table_trials=10, compose_episodes=50, knockout_episodes=10, mdp_episodes_19=1000,
                      mdp_episodes_100=100,
                      holds="The paper's sizes: 50 insertion demonstrations, 5 full-task demonstrations, 200 epochs, "
                            "24 mixtures, n = 10, 10 trials per Table I cell, and 50 composed seeds."),
-    "smoke": Profile("smoke", resolution=32, image_size=32, insertion_demos=1, full_task_demos=3, train_demos=2,
+    "smoke": Profile("smoke", resolution=32, image_size=32, insertion_demos=1, transport_demos=1, full_task_demos=3, train_demos=2,
                      dmp_episodes=1, rollouts=1, cnn_epochs=2, vae_epochs=2, dynamics_epochs=2, goal_epochs=2,
                      table_trials=1, compose_episodes=1, knockout_episodes=1, mdp_episodes_19=20, mdp_episodes_100=2,
                      mdp_levels=(0.0, 0.4, 0.8), mixtures=4, horizon=3, samples=4,
@@ -81,9 +82,11 @@ def stages(p: Profile) -> list[Stage]:
     from policy_composer.tasks.gear_assembly import TASK_REVISION
 
     insertion = load_recipe("gear-insertion-demos")
+    transport = load_recipe("gear-transport-demos")
     full_task = replace(load_recipe("gear-full-task-demos"), train_episodes=p.train_demos)
     rollouts = load_recipe("gear-controller-rollouts")
-    cnn = CNNPolicyConfig(epochs=p.cnn_epochs, num_mixtures=p.mixtures, image_size=p.image_size)
+    cnn = {s: CNNPolicyConfig(subtask=s, epochs=p.cnn_epochs, num_mixtures=p.mixtures, image_size=p.image_size)
+           for s in ("pick", "move", "insert")}
     vae = VAEConfig(epochs=p.vae_epochs, image_size=p.image_size)
     dynamics = DynamicsConfig(epochs=p.dynamics_epochs)
     goal = GoalScoreConfig(epochs=p.goal_epochs, num_mixtures=p.mixtures, image_size=p.image_size)
@@ -100,14 +103,18 @@ def stages(p: Profile) -> list[Stage]:
         Stage("insertion-demos", f"record the insertion demonstrations ({p.insertion_demos})",
               record(insertion, p.insertion_demos),
               lambda out, _: _record(insertion, out, p.insertion_demos, p.resolution), resumable=True),
+        Stage("transport-demos", f"record the pick-up and carry demonstrations ({p.transport_demos})",
+              record(transport, p.transport_demos),
+              lambda out, _: _record(transport, out, p.transport_demos, p.resolution), resumable=True),
         Stage("full-task-demos", f"record the full-task demonstrations ({p.full_task_demos}, of which "
               f"{p.train_demos} train the goal scorers)", record(full_task, p.full_task_demos),
               lambda out, _: _record(full_task, out, p.full_task_demos, p.resolution), resumable=True),
         Stage("dmp", f"fit the DMPs to the motion planner's episodes ({p.dmp_episodes})",
               {"episodes": p.dmp_episodes, **env},
               lambda out, _: _fit_dmp(out, p.dmp_episodes)),
-        Stage("cnn", f"train the CNN policy ({p.cnn_epochs} epochs)", asdict(cnn),
-              lambda out, i: _train_cnn(out, i["insertion-demos"], cnn), inputs=("insertion-demos",)),
+        Stage("cnn", f"train the CNN policies: pick, move, insert ({p.cnn_epochs} epochs)",
+              {s: asdict(c) for s, c in cnn.items()},
+              lambda out, i: _train_cnn(out, i, cnn), inputs=("insertion-demos", "transport-demos")),
         Stage("controller-rollouts", f"record rollouts of each controller ({p.rollouts} each)",
               {**record(rollouts, p.rollouts), **library},
               lambda out, i: _record(rollouts, out, p.rollouts, p.resolution, _sources(i)), inputs=("dmp", "cnn"),
@@ -169,7 +176,7 @@ def _record(recipe, out: Path, episodes: int, resolution: int, sources=None) -> 
 def _sources(inputs: dict[str, Path]):
     from policy_composer.policies.library import LibrarySources
 
-    return LibrarySources(models={"dmp": str(inputs["dmp"] / "dmp"), "cnn": str(inputs["cnn"] / "cnn_insert")})
+    return LibrarySources(models={"dmp": str(inputs["dmp"] / "dmp"), "cnn": str(inputs["cnn"] / "cnn")})
 
 
 def _fit_dmp(out: Path, episodes: int) -> dict:
@@ -185,15 +192,21 @@ def _fit_dmp(out: Path, episodes: int) -> dict:
     return {"episodes": episodes}
 
 
-def _train_cnn(out: Path, demos: Path, config) -> dict:
+def _train_cnn(out: Path, inputs: dict[str, Path], configs: dict) -> dict:
+    """One CNN policy per subtask, in the library's CNN model folder (out/cnn/SUBTASK)."""
     import torch
 
+    from policy_composer.policies.cnn.configuration_cnn import DEMONSTRATIONS
     from policy_composer.policies.cnn.train import train_cnn_policy
 
     torch.set_num_threads(2)
-    t0 = time.perf_counter()
-    _, losses = train_cnn_policy(demos / "dataset", config, out=out / "cnn_insert")
-    return {"timings": {"CNN policy": time.perf_counter() - t0}, "nll": [losses[0], losses[-1]]}
+    timings, nll = {}, {}
+    for subtask, config in configs.items():
+        t0 = time.perf_counter()
+        demos = inputs[DEMONSTRATIONS[subtask][0].removeprefix("gear-")] / "dataset"
+        _, losses = train_cnn_policy(demos, config, out=out / "cnn" / subtask)
+        timings[f"CNN {subtask} policy"], nll[subtask] = time.perf_counter() - t0, [losses[0], losses[-1]]
+    return {"timings": timings, "nll": nll}
 
 
 def _train_world(out: Path, inputs: dict[str, Path], vae, dynamics, goal) -> dict:

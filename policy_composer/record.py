@@ -11,7 +11,7 @@ from policy_composer.data.features import read_sidecar
 from policy_composer.data.recipes import Recipe, RecipeError
 from policy_composer.policies.library import LibrarySources, all_names, build_library, cameras_needed, model_ids
 from policy_composer.tasks.rollout import make_env
-from policy_composer.tasks.spec import EnvSettings
+from policy_composer.tasks.spec import EXPERT_PHASES, EnvSettings
 
 
 def recipe_controllers(recipe: Recipe) -> tuple[str, ...]:
@@ -109,6 +109,8 @@ def _record_expert(recipe: Recipe, recorder, target: int, seed: int, bar) -> Non
                                                        teleop=recipe.expert.teleop,
                                                        arrival_error=recipe.expert.arrival_error_mm / 1000.0))
     limit, attempts = episode_limit(recorder), 0
+    # The episode ends once the expert has left the last phase the recipe records.
+    last = max(map(EXPERT_PHASES.index, recipe.record_phases), default=len(EXPERT_PHASES) - 1)
     while recorder.num_episodes < target:
         attempts += 1
         if attempts > 3 * target + 5:
@@ -120,11 +122,11 @@ def _record_expert(recipe: Recipe, recorder, target: int, seed: int, bar) -> Non
         recorder.controller = expert.name
         info = None
         for _ in range(limit):
-            if expert.done:
+            if expert.done or EXPERT_PHASES.index(expert.phase) > last:
                 break
             recorder.recording = not recipe.record_phases or expert.phase in recipe.record_phases
             obs, _, _, _, info = recorder.step(expert.act(obs))
-        success = info is not None and bool(info["success"][0])
+        success = info is not None and bool(info[recipe.goal][0])
         if recorder.buffered_frames == 0 or (recipe.keep == "success" and not success):
             recorder.discard_episode()
         else:

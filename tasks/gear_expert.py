@@ -23,8 +23,6 @@ from policy_composer.tasks.gear_kinematics import LeftArmIK, hand_down_quat, pla
 
 GRIPPER_OPEN = 1.0  # normalised gripper commands (see ACTION_NAMES)
 GRIPPER_CLOSED = -1.0
-# Stage names of the expert's phase machine, in order.
-PHASES = ("approach", "descend", "close", "lift", "carry", "insert", "release", "retreat", "done")
 
 
 @dataclass
@@ -46,7 +44,8 @@ class ExpertConfig:
 
 
 class GearAssemblyExpert:
-    """Phase machine: approach -> descend -> close -> lift -> carry -> insert -> release -> retreat -> done."""
+    """Phase machine through spec.EXPERT_PHASES: approach -> descend -> close -> lift -> carry -> insert -> release ->
+    retreat -> done."""
 
     name = "expert"
 

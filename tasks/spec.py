@@ -23,6 +23,10 @@ ACTION_NAMES = tuple(
 # Where an episode starts (reset option "start"): the gear on the table, or already in the left gripper above the
 # peg where the insertion begins.
 START_STATES = ("table", "pre_insertion")
+# The scripted expert's phases, in order (a recipe records some of them).
+EXPERT_PHASES = ("approach", "descend", "close", "lift", "carry", "insert", "release", "retreat", "done")
+# The flags of GearAssemblyEnv.evaluate() that say how far the task went, in the order the task reaches them.
+GOAL_FLAGS = ("gear_grasped", "gear_lifted", "gear_at_peg", "success")
 
 # What the task can be made with: the radial clearance the gear's hole leaves around the peg (below 0.5 mm the
 # gear jams, above 6 mm it tips over the peg), and square camera images.

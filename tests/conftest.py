@@ -32,6 +32,19 @@ def insertion_demos(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
+def transport_demos(tmp_path_factory):
+    """Two pick-up and carry demonstrations at 32x32: the CNN pick-up and move policies' data."""
+    from policy_composer.data.recipes import load_recipe
+    from policy_composer.record import record_recipe
+    from policy_composer.tasks.spec import EnvSettings
+
+    root = tmp_path_factory.mktemp("tr") / "gear-transport-demos"
+    record_recipe(load_recipe("gear-transport-demos"), root, episodes=2, settings=EnvSettings(resolution=32),
+                  progress=False)
+    return root
+
+
+@pytest.fixture(scope="session")
 def full_task_demos(tmp_path_factory):
     """Three full-task demonstrations at 32x32, the first two for training, the third held out."""
     from dataclasses import replace

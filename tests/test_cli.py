@@ -71,7 +71,7 @@ def test_compose_does_not_overwrite_a_finished_run(tmp_path):
 
 @pytest.mark.parametrize("command, wrong, message", [
     (("train", "policy", "--dataset"), "full_task_demos",
-     "holds gear-full-task-demos episodes, but training the CNN policy needs gear-insertion-demos"),
+     "holds gear-full-task-demos episodes, but training the CNN insert policy needs gear-insertion-demos"),
     (("train", "world-model", "--rollouts"), "insertion_demos",
      "holds gear-insertion-demos episodes, but training the dynamics models needs gear-controller-rollouts"),
     (("train", "goal-score", "--demos"), "insertion_demos",

@@ -17,6 +17,7 @@ from transforms3d.quaternions import quat2mat
 from policy_composer.controller_table import start_state
 from policy_composer.data.features import read_sidecar
 from policy_composer.data.frames import to_model_image
+from policy_composer.data.recipes import RecipeError
 from policy_composer.policies.arm import np0
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 from policy_composer.policies.cnn.controller import CNNController, hand_step
@@ -30,6 +31,7 @@ from policy_composer.policies.cnn.train import (
     train_cnn_policy,
 )
 from policy_composer.policies.lerobot_policy import LeRobotPolicyController
+from policy_composer.policies.subtasks import SUBTASKS
 from policy_composer.tasks.gear_expert import ExpertConfig, GearAssemblyExpert
 from policy_composer.tasks.gear_kinematics import LeftArmIK
 
@@ -91,6 +93,56 @@ def test_cnn_loss_falls_and_checkpoint_reloads(insertion_demos, tmp_path):
     config_file.write_text(config_file.read_text().replace('"action_space"', '"action_dim": 8, "action_space"'))
     with pytest.raises(CheckpointError, match="another configuration of the CNN policy"):
         load_cnn_policy(tmp_path / "cnn")
+
+
+def test_pick_and_move_policies_learn_their_stages_of_the_transport_demos(transport_demos, tmp_path):
+    """A transport demonstration ends at the pre-insertion pose (nothing after it is simulated); the pick-up policy
+    learns its frames before the lift, the move policy the carry; the library's CNN model is a folder of them."""
+    from policy_composer.data.frames import load_frames
+    from policy_composer.policies.cnn.train import load_cnn_library
+
+    sidecar = read_sidecar(transport_demos)
+    assert all(e["success"] for e in sidecar["episodes"]), sidecar["episodes"]
+    frames = load_frames(transport_demos, ("left_forearm",), 32, progress=False)
+    last = torch.cat([frames["episode_index"][1:] != frames["episode_index"][:-1], torch.tensor([True])])
+    assert frames["stage"][last].tolist() == [2, 2]  # every episode ends at the pre-insertion pose, not further
+    counts = torch.bincount(frames["stage"], minlength=4).tolist()
+    assert counts[0] > 20 and counts[1] > 20 and counts[3] == 0, counts
+    sizes = {}
+    for subtask in ("pick", "move"):
+        config = CNNPolicyConfig(**{**TINY, "subtask": subtask, "epochs": 2})
+        sizes[subtask] = len(load_demonstrations(transport_demos, config, progress=False)["image"])
+        train_cnn_policy(transport_demos, config, out=tmp_path / "cnn" / subtask, progress=False)
+    assert sizes == {"pick": counts[0], "move": counts[1] + counts[2]}
+    library = load_cnn_library(tmp_path / "cnn")
+    assert sorted(library) == ["move", "pick"] and library["pick"].config.subtask == "pick"
+    assert list(load_cnn_library(tmp_path / "cnn" / "move")) == ["move"]
+    with pytest.raises(RecipeError, match="holds gear-transport-demos episodes, but training the CNN insert policy "
+                                          "needs gear-insertion-demos"):
+        load_demonstrations(transport_demos, CNNPolicyConfig(**TINY), progress=False)
+    with pytest.raises(CheckpointError, match="train them with `policy-composer train policy --subtask SUBTASK`"):
+        load_cnn_library(tmp_path)
+
+
+def test_a_policy_pushing_against_the_table_keeps_its_command_near_the_hand(rgb_env):
+    """A pick-up trained on 20 demonstrations pressed down beside the gear and wound its command up, 5 mm a step,
+    until joint 2 passed its limit (a safety stop): the command now stays within MAX_LEAD of the measured TCP, so
+    the same policy runs out of steps instead, within the joints' limits."""
+    from policy_composer.policies.arm import Outcome, run_activation
+    from policy_composer.policies.cnn.controller import MAX_LEAD
+
+    class PressesDown:  # the policy's interface: config and act(image, state) -> (1, 4)
+        config = CNNPolicyConfig(subtask="pick", image_size=32)
+
+        def act(self, image, state):
+            return torch.tensor([[0.0, 0.0, 0.01, 1.0]])  # 10 mm a step along the hand's z axis (down), open
+
+    obs = start_state(rgb_env, 3, "pick")
+    controller = CNNController(rgb_env, PressesDown(), SUBTASKS["pick"], max_steps=100)
+    run_activation(rgb_env, controller, obs, seed=3)
+    assert controller.outcome is Outcome.FAILED and controller._steps == 100, controller.reason
+    assert np.linalg.norm(controller._command - np0(controller.ik.arm.tcp.pose.p)) <= MAX_LEAD + 1e-9
+    assert controller.scene.tcp()[2] < 0.03  # it did press down to the table
 
 
 def follow_demonstration(env, model, seed: int) -> dict[str, np.ndarray]:

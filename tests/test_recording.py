@@ -161,7 +161,8 @@ def test_bad_input_is_named(insertion_demos, tmp_path):
     env.close()
     with pytest.raises(RecipeError, match="known recipes"):
         load_recipe("gear-nothing")
-    assert available_recipes() == ["gear-controller-rollouts", "gear-full-task-demos", "gear-insertion-demos"]
+    assert available_recipes() == ["gear-controller-rollouts", "gear-full-task-demos", "gear-insertion-demos",
+                                   "gear-transport-demos"]
     assert load_recipe("gear-full-task-demos").splits(8) == {"train": [0, 1, 2, 3, 4], "heldout": [5, 6, 7]}
     rollouts = load_recipe("gear-controller-rollouts")
     assert rollouts.cameras == ("head", "left_forearm")
@@ -169,13 +170,17 @@ def test_bad_input_is_named(insertion_demos, tmp_path):
         record_recipe(replace(rollouts, controllers=("mp_fly",)), tmp_path / "ro1", settings=EnvSettings(resolution=32))
     missing = LibrarySources(models={"dmp": str(tmp_path / "none"),
                                      "cnn": str(tmp_path / "none")})  # not results/models
-    with pytest.raises(CheckpointError, match="no CNN policy checkpoint .* train one with `policy-composer train"):
+    with pytest.raises(CheckpointError, match="no CNN policy in .* train them with `policy-composer train policy"):
         record_recipe(rollouts, tmp_path / "ro2", settings=EnvSettings(resolution=32), sources=missing)
     with pytest.raises(FileNotFoundError, match="train dmp"):
         record_recipe(replace(rollouts, controllers=("dmp_move",)), tmp_path / "ro3",
                       settings=EnvSettings(resolution=32), sources=missing)
     with pytest.raises(RecipeError, match="non-empty subset"):
         replace(rollouts, cameras=("wrist",))
+    with pytest.raises(RecipeError, match="goal must be one of"):
+        replace(rollouts, goal="gear_seated")
+    with pytest.raises(RecipeError, match="must be phases of the expert"):
+        replace(rollouts, record_phases=("insert", "wave"))
 
 
 def test_controller_rollouts_name_their_controller(controller_rollouts):

@@ -47,9 +47,9 @@ def wiggle():
 def test_the_built_in_kinds():
     assert [(k.name, k.label, k.subtasks) for k in registry.kinds().values()] == [
         ("mp", "MP", ("pick", "move", "insert", "regrasp")), ("dmp", "DMP", ("pick", "move", "insert")),
-        ("cnn", "CNN", ("insert",))]
+        ("cnn", "CNN", ("pick", "move", "insert"))]
     assert all_names() == ("mp_pick", "mp_move", "mp_insert", "mp_regrasp", "dmp_pick", "dmp_move", "dmp_insert",
-                           "cnn_insert")
+                           "cnn_pick", "cnn_move", "cnn_insert")
     assert names_of_kind("dmp") == names_of_kind("DMP") == ("dmp_pick", "dmp_move", "dmp_insert")
     with pytest.raises(LibraryError, match="unknown controller kind 'RL'; the library has MP, DMP, CNN"):
         get_kind("RL")
@@ -63,7 +63,7 @@ def test_one_registration_reaches_every_reader(wiggle, state_env, tmp_path):
     controller = build_library(state_env, ["wiggle_insert"], sources)["wiggle_insert"]
     assert isinstance(controller, WiggleInsert) and controller.subtask.name == "insert" and controller.max_steps == 80
     args = build_parser().parse_args(["compose", "--wiggle", "elsewhere"])
-    assert args.wiggle == "elsewhere" and args.cnn == "results/models/cnn_insert"
+    assert args.wiggle == "elsewhere" and args.cnn == "results/models/cnn"
     assert build_parser().parse_args(["evaluate", "controllers"]).kinds == "MP,DMP,CNN,Wiggle"
     with pytest.raises(LibraryError, match="registered twice"):
         register_kind(ControllerKind("wiggle", "Wiggle", ("pick",), build=f"{__name__}:build"))

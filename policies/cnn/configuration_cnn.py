@@ -21,8 +21,16 @@ PROPRIOCEPTION = {"gripper": slice(7, 8), "arm": slice(0, 8)}
 ACTION_SPACES = {"hand": 4, "joint": 8}
 
 
+# The subtasks a CNN policy is trained for, the recipe of its demonstrations and the task stages (the frames'
+# `stage`) it learns from; None: every frame. The move keeps the carry's last frames at the pre-insertion pose too,
+# so it learns where the carry ends, not only where the pre-insertion pose's tolerance begins.
+DEMONSTRATIONS = {"pick": ("gear-transport-demos", (0,)), "move": ("gear-transport-demos", (1, 2)),
+                  "insert": ("gear-insertion-demos", None)}
+
+
 @dataclass
 class CNNPolicyConfig:
+    subtask: str = option("insert", "the subtask the policy is trained for", tuple(DEMONSTRATIONS))
     camera: str = option("left_forearm", "the camera the policy sees", CAMERA_NAMES)
     image_size: int = option(64, "images are resized to this square before the encoder", minimum=16)
     backbone: str = option("spatial", "image encoder (see learning.layers.image_encoder)", BACKBONES)

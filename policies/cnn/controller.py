@@ -1,4 +1,5 @@
-"""The CNN policy as a controller of the library (`cnn_insert`): camera pixels and arm joints in, joint targets out."""
+"""The CNN policies as controllers of the library (`cnn_pick`, `cnn_move`, `cnn_insert`): camera pixels and the
+gripper's width in, joint targets out."""
 
 from __future__ import annotations
 
@@ -11,8 +12,16 @@ from policy_composer.policies.arm import np0
 from policy_composer.policies.cnn.configuration_cnn import PROPRIOCEPTION
 from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
 from policy_composer.policies.cnn.train import policy_state
+from policy_composer.policies.registry import LibraryError
 from policy_composer.policies.subtasks import SUBTASKS, LearnedController, Subtask, check_camera
 from policy_composer.tasks.gear_kinematics import LeftArmIK
+
+
+# How far the commanded TCP may run ahead of the measured one (m). The demonstrations' commands lead it by 8 cm at
+# most; a policy pushing against the table or the peg would otherwise wind its command up until the arm reaches a
+# joint limit (a pick-up trained on 20 demonstrations did, pressing down beside the gear, and was stopped for
+# safety).
+MAX_LEAD = 0.10
 
 
 class CNNController(LearnedController):
@@ -50,16 +59,23 @@ class CNNController(LearnedController):
 def hand_step(ik: LeftArmIK, command: np.ndarray, displacement: np.ndarray,
               quat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Move the commanded TCP position (world) by `displacement` (m, in the hand's frame), orientation `quat`:
-    the new command and its joint targets (7), solved from the measured joints."""
+    the new command, kept within MAX_LEAD of the measured TCP, and its joint targets (7), solved from the measured
+    joints."""
     command = command + quat2mat(np0(ik.arm.tcp.pose.q)) @ displacement
+    lead = command - np0(ik.arm.tcp.pose.p)
+    if np.linalg.norm(lead) > MAX_LEAD:
+        command = command - lead * (1.0 - MAX_LEAD / np.linalg.norm(lead))
     q9, _ = ik.solve(sapien.Pose(command, quat), np0(ik.arm.robot.get_qpos()))
     return command, q9[:7]
 
 
-def build(env, subtask, policy: CNNPolicy, max_grasp_offset: float) -> CNNController:
-    """The registry's builder: the trained policy as the subtask's controller."""
-    return CNNController(env, policy, subtask)
+def build(env, subtask, policies: dict[str, CNNPolicy], max_grasp_offset: float) -> CNNController:
+    """The registry's builder: the policy trained for the subtask as its controller."""
+    if subtask.name not in policies:
+        raise LibraryError(f"the CNN model has no policy for {subtask.name} (it has {', '.join(policies)}); train one "
+                           f"with `policy-composer train policy --subtask {subtask.name}`")
+    return CNNController(env, policies[subtask.name], subtask)
 
 
-def policy_cameras(policy: CNNPolicy) -> tuple[str, ...]:
-    return (policy.config.camera,)
+def policy_cameras(policies: dict[str, CNNPolicy]) -> tuple[str, ...]:
+    return tuple(dict.fromkeys(p.config.camera for p in policies.values()))

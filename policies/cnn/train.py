@@ -1,8 +1,9 @@
-"""Behaviour cloning of the CNN policy on a LeRobot dataset (`gear-insertion-demos`), and its checkpoints.
+"""Behaviour cloning of the CNN policies on LeRobot datasets (the insertion on `gear-insertion-demos`, the pick-up
+and the move on the stages of `gear-transport-demos`), and their checkpoints.
 
-The dataset's frames are decoded once into memory at the policy's image size (the insertion demos are a
-few thousand frames), so each epoch costs only the network, not video decoding. Checkpoints are a
-safetensors file of weights and normalisation statistics with the config as JSON beside it.
+The dataset's frames are decoded once into memory at the policy's image size (a few thousand frames), so each
+epoch costs only the network, not video decoding. A checkpoint is a safetensors file of weights and normalisation
+statistics with the config as JSON beside it; the library's CNN model is a folder with one per subtask.
 """
 
 from __future__ import annotations
@@ -13,12 +14,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from policy_composer.data.features import image_key
+from policy_composer.data.features import DatasetError, image_key
 from policy_composer.data.frames import load_frames, random_shift
 from policy_composer.data.recipes import check_recipe
 from policy_composer.learning.checkpoint import CheckpointError, load_checkpoint, load_config, save_checkpoint
 from policy_composer.learning.training import fit_epochs
-from policy_composer.policies.cnn.configuration_cnn import PROPRIOCEPTION, CNNPolicyConfig
+from policy_composer.policies.cnn.configuration_cnn import DEMONSTRATIONS, PROPRIOCEPTION, CNNPolicyConfig
 from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
 from policy_composer.tasks.gear_kinematics import PandaForwardKinematics
 
@@ -56,15 +57,20 @@ def action_target(state16: torch.Tensor, action16: torch.Tensor, prev16: torch.T
 
 def load_demonstrations(root: str | Path, config: CNNPolicyConfig, episodes: list[int] | None = None,
                         progress: bool = True) -> dict[str, torch.Tensor]:
-    """A dataset in memory as the policy trains on it: images (N, 3, S, S) uint8, arm state (N, 8) and action
-    target (N, action_dim)."""
-    check_recipe(root, "gear-insertion-demos", "the CNN policy")
+    """A dataset in memory as the policy trains on it: the frames of the policy's subtask (see DEMONSTRATIONS), as
+    images (N, 3, S, S) uint8, arm state (N, state_dim) and action target (N, action_dim)."""
+    recipe, stages = DEMONSTRATIONS[config.subtask]
+    check_recipe(root, recipe, f"the CNN {config.subtask} policy")
     frames = load_frames(root, (config.camera,), config.image_size, episodes,
-                         required={"observation.state": (16,), "action": (16,)}, progress=progress)
+                         required={"observation.state": (16,), "action": (16,), "stage": (1,)}, progress=progress)
     state, action = frames["observation.state"], frames["action"]
-    prev = previous_commands(state, action, frames["episode_index"])
-    return {"image": frames[image_key(config.camera)], "state": policy_state(state, config),
-            "action": action_target(state, action, prev, config.action_space)}
+    prev = previous_commands(state, action, frames["episode_index"])  # over whole episodes, before the stage cut
+    keep = torch.isin(frames["stage"], torch.tensor(stages)) if stages else torch.ones(len(state), dtype=torch.bool)
+    if not keep.any():
+        raise DatasetError(f"{root} has no frames of the {config.subtask} subtask (stages {list(stages)}); record "
+                           f"{recipe} for it")
+    return {"image": frames[image_key(config.camera)][keep], "state": policy_state(state[keep], config),
+            "action": action_target(state[keep], action[keep], prev[keep], config.action_space)}
 
 
 def train_cnn_policy(root: str | Path, config: CNNPolicyConfig, out: str | Path | None = None,
@@ -99,6 +105,21 @@ def train_cnn_policy(root: str | Path, config: CNNPolicyConfig, out: str | Path 
 
 def save_cnn_policy(model: CNNPolicy, out: str | Path, log: dict | None = None) -> None:
     save_checkpoint(model, model.config, out, log)
+
+
+def load_cnn_library(path: str | Path) -> dict[str, CNNPolicy]:
+    """The library's CNN model: a folder with one checkpoint per subtask (`pick`, `move`, `insert`), by subtask. A
+    single checkpoint's folder is taken as the policy of the subtask it was trained for."""
+    path = Path(path)
+    if (path / "config.json").is_file():
+        policy = load_cnn_policy(path)
+        return {policy.config.subtask: policy}
+    policies = {s: load_cnn_policy(path / s) for s in DEMONSTRATIONS if (path / s / "config.json").is_file()}
+    if not policies:
+        raise CheckpointError(f"no CNN policy in {path} (expected a checkpoint, or one in a subfolder per subtask: "
+                              f"{', '.join(DEMONSTRATIONS)}); train them with `policy-composer train policy --subtask "
+                              "SUBTASK`")
+    return policies
 
 
 def load_cnn_policy(path: str | Path, camera: str | None = None, state_dim: int | None = None) -> CNNPolicy:

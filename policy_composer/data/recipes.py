@@ -7,7 +7,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from policy_composer.data.features import read_info, read_sidecar
-from policy_composer.tasks.spec import CAMERA_NAMES, START_STATES
+from policy_composer.tasks.spec import CAMERA_NAMES, EXPERT_PHASES, GOAL_FLAGS, START_STATES
 
 RECIPE_DIR = Path(__file__).resolve().parents[2] / "datasets" / "recipes"
 DRIVERS = ("expert", "controllers")
@@ -32,6 +32,9 @@ class Recipe:
     episodes: int  # default number of episodes (per controller for the "controllers" driver)
     driver: str  # "expert": the scripted expert; "controllers": each controller of the library
     record_phases: tuple[str, ...] = ()  # expert phases to record; empty: the whole episode
+    # The flag of GearAssemblyEnv.evaluate() an episode must end with to succeed. The expert's episodes end once it
+    # has left the last of `record_phases`, so a recipe of the first subtasks simulates nothing after them.
+    goal: str = "success"
     start: str = "table"  # "expert" driver: where episodes start (GearAssembly-v1's START_STATES)
     keep: str = "success"  # "success": failed episodes are dropped and another seed is tried; "all"
     train_episodes: int | None = None  # episodes [0, train_episodes) train, the rest are held out
@@ -47,6 +50,11 @@ class Recipe:
                               f"{list(CAMERA_NAMES)}")
         if self.start not in START_STATES:
             raise RecipeError(f"recipe {self.name}: start must be one of {list(START_STATES)}, not {self.start!r}")
+        if set(self.record_phases) - set(EXPERT_PHASES):
+            raise RecipeError(f"recipe {self.name}: record_phases {list(self.record_phases)} must be phases of the "
+                              f"expert: {list(EXPERT_PHASES)}")
+        if self.goal not in GOAL_FLAGS:
+            raise RecipeError(f"recipe {self.name}: goal must be one of {list(GOAL_FLAGS)}, not {self.goal!r}")
         if self.keep not in ("success", "all"):
             raise RecipeError(f"recipe {self.name}: keep must be 'success' or 'all', not {self.keep!r}")
 
