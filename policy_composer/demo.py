@@ -47,24 +47,28 @@ class Profile:
 
 
 PROFILES = {
-    "quick": Profile("quick", resolution=64, image_size=64, insertion_demos=20, transport_demos=20, full_task_demos=7, train_demos=5,
-                     dmp_episodes=5, rollouts=4, cnn_epochs=80, vae_epochs=15, dynamics_epochs=30, goal_epochs=30,
+    "quick": Profile("quick", resolution=64, image_size=64, insertion_demos=20, transport_demos=20,
+                     full_task_demos=7, train_demos=5, dmp_episodes=5, rollouts=4, cnn_epochs=80, vae_epochs=15,
+                     dynamics_epochs=30, goal_epochs=30,
                      table_trials=3, compose_episodes=10, knockout_episodes=3, mdp_episodes_19=1000,
                      mdp_episodes_100=30,
                      holds="The MDP experiments, the MP row of Table I, the composed row and the goal-score "
                            "comparison between cameras hold at this size (the MP row needs no training; the MDP runs "
                            "1000 episodes, and 30 in each of the 9x9 noise cells; the composed row holds on seeds no "
-                           "model saw, as the README measures). The CNN policy (20 demonstrations, 80 epochs) is far "
-                           "below the paper's sizes and Table I's cells have 3 trials, so the CNN row shows that the "
-                           "pipeline works, not how well: run `--profile paper` for that."),
-    "paper": Profile("paper", resolution=128, image_size=64, insertion_demos=50, transport_demos=50, full_task_demos=8, train_demos=5,
-                     dmp_episodes=5, rollouts=20, cnn_epochs=200, vae_epochs=30, dynamics_epochs=60, goal_epochs=60,
+                           "model saw, as the README measures). The CNN policies (20 demonstrations each, 80 "
+                           "epochs) are far below the paper's sizes and Table I's cells have 3 trials, so the CNN "
+                           "row shows that the pipeline works, not how well: run `--profile paper` for that."),
+    "paper": Profile("paper", resolution=128, image_size=64, insertion_demos=50, transport_demos=50,
+                     full_task_demos=8, train_demos=5, dmp_episodes=5, rollouts=20, cnn_epochs=200, vae_epochs=30,
+                     dynamics_epochs=60, goal_epochs=60,
                      table_trials=10, compose_episodes=50, knockout_episodes=10, mdp_episodes_19=1000,
                      mdp_episodes_100=100,
-                     holds="The paper's sizes: 50 insertion demonstrations, 5 full-task demonstrations, 200 epochs, "
-                           "24 mixtures, n = 10, 10 trials per Table I cell, and 50 composed seeds."),
-    "smoke": Profile("smoke", resolution=32, image_size=32, insertion_demos=1, transport_demos=1, full_task_demos=3, train_demos=2,
-                     dmp_episodes=1, rollouts=1, cnn_epochs=2, vae_epochs=2, dynamics_epochs=2, goal_epochs=2,
+                     holds="The paper's sizes: 50 insertion demonstrations (and 50 of the pick-up and carry), 5 "
+                           "full-task demonstrations, 200 epochs, 24 mixtures, n = 10, 10 trials per Table I cell, "
+                           "and 50 composed seeds."),
+    "smoke": Profile("smoke", resolution=32, image_size=32, insertion_demos=1, transport_demos=1,
+                     full_task_demos=3, train_demos=2, dmp_episodes=1, rollouts=1, cnn_epochs=2, vae_epochs=2,
+                     dynamics_epochs=2, goal_epochs=2,
                      table_trials=1, compose_episodes=1, knockout_episodes=1, mdp_episodes_19=20, mdp_episodes_100=2,
                      mdp_levels=(0.0, 0.4, 0.8), mixtures=4, horizon=3, samples=4,
                      holds="Every stage at the smallest size that runs, to test the pipeline: no figure here means "

@@ -96,7 +96,8 @@ def _header(profile, records: dict[str, StageRecord], wall_seconds: float) -> st
            if len(ran) < len(records) else "."),
         "",
         f"**What holds at this size.** {profile.holds}", "",
-        f"Sizes: {profile.insertion_demos} insertion demonstrations, {profile.train_demos} full-task demonstrations "
+        f"Sizes: {profile.insertion_demos} insertion and {profile.transport_demos} pick-up and carry demonstrations, "
+        f"{profile.train_demos} full-task demonstrations "
         f"for the goal scorers ({profile.full_task_demos - profile.train_demos} held out), {profile.rollouts} rollouts "
         f"per controller, CNN {profile.cnn_epochs} epochs, {profile.mixtures} mixtures, "
         f"selector n = {profile.horizon}, "

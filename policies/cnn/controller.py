@@ -16,7 +16,6 @@ from policy_composer.policies.registry import LibraryError
 from policy_composer.policies.subtasks import SUBTASKS, LearnedController, Subtask, check_camera
 from policy_composer.tasks.gear_kinematics import LeftArmIK
 
-
 # How far the commanded TCP may run ahead of the measured one (m). The demonstrations' commands lead it by 8 cm at
 # most; a policy pushing against the table or the peg would otherwise wind its command up until the arm reaches a
 # joint limit (a pick-up trained on 20 demonstrations did, pressing down beside the gear, and was stopped for
