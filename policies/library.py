@@ -103,8 +103,9 @@ def model_ids(names, sources: LibrarySources) -> dict[str, str]:
     for name in names:
         kind = kind_of(name)
         path = lerobot.get(name) or (sources.model_path(kind.name) if kind is not None and kind.load else None)
-        if path is not None and kind is not None and (Path(path) / name.removeprefix(f"{kind.name}_")).is_dir():
-            path = Path(path) / name.removeprefix(f"{kind.name}_")  # the subtask's own model
+        if path is not None and kind is not None:  # a folder with one model per subtask: the subtask's own
+            own = Path(path) / name.removeprefix(f"{kind.name}_")
+            path = own if own.is_dir() else path
         if path is not None and Path(path).is_dir():  # a missing model: building the controller says so
             ids[name] = weights_id(path)
     return ids

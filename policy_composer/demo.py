@@ -207,7 +207,7 @@ def _train_cnn(out: Path, inputs: dict[str, Path], configs: dict) -> dict:
     timings, nll = {}, {}
     for subtask, config in configs.items():
         t0 = time.perf_counter()
-        demos = inputs[DEMONSTRATIONS[subtask][0].removeprefix("gear-")] / "dataset"
+        demos = inputs[DEMONSTRATIONS[subtask][0].removeprefix("gear-")] / "dataset"  # the recipe's stage
         _, losses = train_cnn_policy(demos, config, out=out / "cnn" / subtask)
         timings[f"CNN {subtask} policy"], nll[subtask] = time.perf_counter() - t0, [losses[0], losses[-1]]
     return {"timings": timings, "nll": nll}

@@ -281,6 +281,29 @@ def test_a_back_off_from_commands_the_arm_could_not_follow_ramps_instead_of_stop
     np.testing.assert_allclose(steps[-1], [0, 0.3, 0, 0, 0, 0, -0.1])
 
 
+def test_a_learned_pick_up_and_move_end_holding_the_gear_once_achieved(state_env):
+    """A learned pick-up or move ends as soon as its subtask is achieved, with the gear still in the hand (an
+    insertion ends only once the hand has let go): stand-ins that follow the scripted expert's commands stop at the
+    lift and at the pre-insertion pose, not at their step budget."""
+    from policy_composer.tasks.gear_expert import GearAssemblyExpert
+
+    class FollowsExpert(LearnedController):
+        def predict(self, obs):
+            action = expert.act(obs)
+            return action[:7].numpy().astype(np.float64), float(action[7])
+
+    obs, _ = state_env.reset(seed=4)
+    expert = GearAssemblyExpert(state_env)
+    expert.reset(4)
+    for subtask, phase in (("pick", "lift"), ("move", "carry")):
+        controller = FollowsExpert(state_env, SUBTASKS[subtask], f"expert_{subtask}", max_steps=200)
+        obs = run_activation(state_env, controller, obs, seed=4)
+        info = controller.scene.info()
+        assert controller.outcome is Outcome.DONE and controller._steps < 200, (subtask, controller.reason)
+        assert info["gear_grasped"] and expert.phase == phase, (subtask, expert.phase)
+    assert info["gear_at_peg"] and not info["gear_inserted"]
+
+
 def test_a_plan_that_starts_away_from_the_measured_joints_ramps_there(state_env):
     """After a CNN back-off the arm lags its commands, and `mp_insert`'s first target (solved for where the gear should
     be) was a jump a safety check stopped (joint 4 at 2.4 rad/s): a planned activation now ramps to its start."""
