@@ -81,6 +81,10 @@ class SceneGeometry:
         up = float(self.env.gear.pose.to_transformation_matrix()[0, 2, 2])
         return float(np.degrees(np.arccos(np.clip(up, -1.0, 1.0))))
 
+    def grasp_shift(self) -> float:
+        """How far the gear's axis is from the TCP across (m): its offset along the fingers, for a level gear."""
+        return float(np.linalg.norm((self.gear() - self.tcp())[:2]))
+
     def peg_top(self) -> np.ndarray:
         return np0(self.env.peg_top.p)
 

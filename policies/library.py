@@ -23,7 +23,9 @@ from policy_composer.policies.registry import LibraryError, get_kind, kind_of, k
 #    commands back to the measured joints at a safe speed (the CNN's back-offs were stopped for safety).
 # 7: a planned activation (MP, DMP) ramps from the measured joints to its first target (an `mp_insert` after a CNN
 #    back-off jumped there and was stopped for safety).
-LIBRARY_REVISION = 7
+# 8: the moves start only with the gear level in the hand and within the pre-insertion tolerance of the fingers'
+#    centre (after an insertion had tipped or pushed it, they failed one after another until the re-grasp).
+LIBRARY_REVISION = 8
 
 __all__ = ["LIBRARY_REVISION", "LeRobotSource", "LibraryError", "LibrarySources", "all_names", "build_library",
            "cameras_needed", "model_ids", "names_of_kind"]

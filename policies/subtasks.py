@@ -153,12 +153,17 @@ class Pick(Subtask):
 
 class Move(Subtask):
     name = "move"
-    initiation = "gear grasped and lifted off the table, not yet held above the peg"
+    initiation = ("gear grasped and lifted off the table, level and within the pre-insertion tolerance of the "
+                  "fingers' centre, not yet held above the peg")
     holds_gear = True
 
     def can_start(self, scene):
+        # A gear tipped in the fingers, or pushed along them, past what the pre-insertion pose allows stays so
+        # wherever the hand takes it: the moves after an insertion that had done it failed one after another,
+        # until the re-grasp.
         info = scene.info()
-        return info["gear_lifted"] and not info["gear_at_peg"] and not info["gear_inserted"]
+        return (info["gear_lifted"] and not info["gear_at_peg"] and not info["gear_inserted"]
+                and scene.gear_tilt() < INSERT_TILT_DEG and scene.grasp_shift() < PRE_INSERT_RADIUS)
 
     def waypoints(self, ik, scene, q_now, grasp_offset):
         _, q = ik_hand_down(ik, scene, scene.pre_insertion_tcp(), q_now)

@@ -161,6 +161,29 @@ def cmd_dataset_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_dataset_card(args: argparse.Namespace) -> int:
+    """The dataset card `dataset push` uploads, built offline: printed, or written to --out."""
+    from policy_composer.data.catalog import dataset_card
+
+    card = str(dataset_card(args.path, args.repo_id))
+    if args.out:
+        Path(args.out).write_text(card)
+        print(f"wrote {args.out}")
+    else:
+        print(card)
+    return 0
+
+
+def cmd_dataset_view(args: argparse.Namespace) -> int:
+    """LeRobot's rerun viewer on one episode, with the project's labels: saved to --out, or shown."""
+    from policy_composer.data.catalog import view_dataset
+
+    path = view_dataset(args.path, args.episode, args.out)
+    if path is not None:
+        print(f"wrote {path} (open it with `rerun {path}`)")
+    return 0
+
+
 def cmd_dataset_push(args: argparse.Namespace) -> int:
     from policy_composer.data.catalog import HubUnreachable, push_dataset
 
@@ -444,7 +467,19 @@ def build_parser() -> argparse.ArgumentParser:
     drop.add_argument("path")
     drop.add_argument("--controller", required=True)
     drop.set_defaults(func=cmd_dataset_drop)
-    push = ds_sub.add_parser("push", help="upload to the Hugging Face Hub with LeRobotDataset.push_to_hub")
+    view = ds_sub.add_parser("view", help="LeRobot's rerun viewer on one episode, with the labels (progress, stage, "
+                             "controller)")
+    view.add_argument("path")
+    view.add_argument("--episode", type=at_least(0), default=0)
+    view.add_argument("--out", default=None, help="save an .rrd file in this folder instead of opening the viewer")
+    view.set_defaults(func=cmd_dataset_view)
+    card = ds_sub.add_parser("card", help="the dataset card `push` uploads (recipe, task, cameras, labels, success)")
+    card.add_argument("path")
+    card.add_argument("--repo-id", default=None, help="USER/NAME the card will link to")
+    card.add_argument("--out", default=None, help="write it to this file (default: print it)")
+    card.set_defaults(func=cmd_dataset_card)
+    push = ds_sub.add_parser("push", help="upload to the Hugging Face Hub with LeRobotDataset.push_to_hub, with "
+                             "its dataset card")
     push.add_argument("path")
     push.add_argument("--repo-id", required=True, help="USER/NAME of the Hub dataset repo")
     push.add_argument("--private", action="store_true")

@@ -69,7 +69,7 @@ find_python() {
 
 python_packages() {
   local stamp="$VENV/.setup-stamp" want
-  want=$(cat pyproject.toml scripts/setup.sh | sha256sum | cut -c1-16)
+  want=$(cat pyproject.toml plugins/*/pyproject.toml scripts/setup.sh | sha256sum | cut -c1-16)
   if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then log "virtual environment up to date"; return; fi
   if [ -x "$VENV/bin/python" ] && ! is_py_want "$VENV/bin/python"; then
     log "rebuilding .venv with Python $PY_WANT (it was built with $("$VENV/bin/python" -V 2>&1))"; rm -rf "$VENV"
@@ -80,7 +80,9 @@ python_packages() {
   fi
   "$VENV/bin/python" -m pip install -q --upgrade pip uv
   log "installing Python packages into .venv (first time: several minutes, torch is large)"
-  VIRTUAL_ENV="$VENV" "$VENV/bin/uv" pip install --python "$VENV/bin/python" -e ".[test]"
+  # The project, and its LeRobot env plugin (lerobot-eval --env.type=gear_assembly).
+  VIRTUAL_ENV="$VENV" "$VENV/bin/uv" pip install --python "$VENV/bin/python" -e ".[test]" \
+    -e plugins/lerobot_env_gear_assembly
   echo "$want" > "$stamp"
 }
 

@@ -304,6 +304,31 @@ def test_a_learned_pick_up_and_move_end_holding_the_gear_once_achieved(state_env
     assert info["gear_at_peg"] and not info["gear_inserted"]
 
 
+def test_a_move_needs_the_gear_level_and_near_the_fingers_centre(state_env):
+    """The moves' initiation set: a gear held lifted, level and within the pre-insertion tolerance of the fingers'
+    centre. Tipped or pushed along the fingers (as a CNN insertion's back-offs left it), no move can bring it to the
+    pre-insertion pose; only the re-grasp may start."""
+    from policy_composer.controller_table import start_state
+    from policy_composer.policies.arm import SceneGeometry
+    from policy_composer.tasks.gear_assembly import INSERT_TILT_DEG, PRE_INSERT_RADIUS
+
+    start_state(state_env, 2, "move")
+    scene = SceneGeometry(state_env)
+    assert SUBTASKS["move"].can_start(scene) and SUBTASKS["regrasp"].can_start(scene)
+    assert scene.gear_tilt() < 5 and scene.grasp_shift() <= 0.0125
+    class Shifted(SceneGeometry):
+        def gear_tilt(self):
+            return self.tilt
+
+        def grasp_shift(self):
+            return self.shift
+
+    for tilt, shift in ((INSERT_TILT_DEG + 1, 0.0), (0.0, PRE_INSERT_RADIUS + 0.001)):
+        shifted = Shifted(state_env)
+        shifted.tilt, shifted.shift = tilt, shift
+        assert not SUBTASKS["move"].can_start(shifted) and SUBTASKS["regrasp"].can_start(shifted)
+
+
 def test_a_plan_that_starts_away_from_the_measured_joints_ramps_there(state_env):
     """After a CNN back-off the arm lags its commands, and `mp_insert`'s first target (solved for where the gear should
     be) was a jump a safety check stopped (joint 4 at 2.4 rad/s): a planned activation now ramps to its start."""

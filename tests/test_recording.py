@@ -20,7 +20,7 @@ from conftest import tree_digest
 
 import policy_composer.tasks.gear_assembly  # noqa: F401  (registers GearAssembly-v1)
 from policy_composer.data import journal
-from policy_composer.data.catalog import HubUnreachable, drop_controller, push_dataset, summarize
+from policy_composer.data.catalog import HubUnreachable, card_fields, drop_controller, push_dataset, summarize
 from policy_composer.data.features import LEROBOT_VERSION, DatasetError, open_dataset
 from policy_composer.data.recipes import RecipeError, available_recipes, load_recipe
 from policy_composer.data.recorder import LeRobotRecorder
@@ -116,10 +116,32 @@ def test_dataset_info_and_push_without_network(insertion_demos, monkeypatch):
     monkeypatch.setattr(LeRobotDataset, "push_to_hub", lambda self, **kw: calls.append((self.repo_id, self.root, kw)))
     assert push_dataset(insertion_demos, "me/gears", private=True) == "https://huggingface.co/datasets/me/gears"
     assert calls[0][0] == "me/gears" and Path(calls[0][1]) == insertion_demos and calls[0][2]["private"] is True
+    assert calls[0][2]["dataset_description"] == card_fields(insertion_demos)["dataset_description"]
     monkeypatch.undo()  # the real reachability check, offline
     monkeypatch.setattr("huggingface_hub.constants.HF_HUB_OFFLINE", True)
     with pytest.raises(HubUnreachable, match="HF_HUB_OFFLINE"):
         push_dataset(insertion_demos, "me/gears")
+
+
+def test_the_dataset_card_says_what_the_dataset_holds(insertion_demos, tmp_path):
+    """The card `dataset push` uploads, built and checked offline: LeRobot's card with the recipe, the task, the
+    cameras, what the labels mean, the success rate and the project version."""
+    from importlib.metadata import version
+
+    out = tmp_path / "README.md"
+    res = subprocess.run([str(BIN / "policy-composer"), "dataset", "card", str(insertion_demos), "--repo-id",
+                          "me/gears", "--out", str(out)], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    card = out.read_text()
+    for expected in ("This dataset was created using [LeRobot]", "- LeRobot", "- gear-assembly",
+                     "**Recipe `gear-insertion-demos`.** Insertion from the pre-insertion pose",
+                     "**Task.** Insert the gear held by the left gripper onto the peg held by the right arm.",
+                     "2 episodes", "the task done in 100% of the episodes",
+                     "`observation.images.left_forearm` (64x64x3)",
+                     "- `stage`: how far the task is at this frame: 0 pick, 1 move, 2 insert, 3 done",
+                     f"policy-composer {version('policy-composer')}", '"codebase_version": "v3.0"',
+                     "visualize_dataset?path=me/gears"):
+        assert expected in card, expected
 
 
 def test_dataset_info_refuses_a_dataset_with_a_video_missing(insertion_demos, tmp_path):

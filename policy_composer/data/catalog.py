@@ -1,4 +1,5 @@
-"""Operations on a whole recorded dataset: summarise it (`dataset info`) and share it (`dataset push`)."""
+"""Operations on a whole recorded dataset: summarise it (`dataset info`), describe it in a dataset card and share it
+(`dataset push`)."""
 
 from __future__ import annotations
 
@@ -109,8 +110,100 @@ def _check_hub_reachable(root: Path) -> None:
                              f"{intact}") from None
 
 
+CARD_TAGS = ["policy-composer", "maniskill", "gear-assembly"]
+# What the labels beside LeRobot's own features mean (the card says it to people who never read this project).
+LABELS = {
+    "progress": "frame index / (T - 1) in a successful episode, -1 in a failed one (the goal score's target)",
+    "stage": "how far the task is at this frame: 0 pick, 1 move, 2 insert, 3 done",
+    "controller": "which controller produced the frame's action: an index into `controllers` of "
+                  "meta/policy_composer.json",
+    "next.success": "the task (the gear seated on the peg) is done after this frame's action",
+    "next.done": "the episode's last frame",
+}
+PAPER = ("Composing Diverse Policies for Temporally Extended Tasks (Angelov, Hristov, Burke, Ramamoorthy, "
+         "RA-L 2020)")
+CITATION = """@article{angelov2020composing,
+  title={Composing Diverse Policies for Temporally Extended Tasks},
+  author={Angelov, Daniel and Hristov, Yordan and Burke, Michael and Ramamoorthy, Subramanian},
+  journal={IEEE Robotics and Automation Letters},
+  volume={5}, number={2}, pages={2658--2665}, year={2020}
+}"""
+
+
+def card_fields(root: str | Path) -> dict[str, str]:
+    """The dataset card's description, paper and citation (LeRobot's card template fills them in): what the dataset
+    holds (its recipe, task, cameras), what its labels mean, its success rate and the project version."""
+    from importlib.metadata import version
+
+    from policy_composer.data.recipes import RecipeError, load_recipe
+
+    summary, sidecar = summarize(root), read_sidecar(root)
+    try:
+        recipe = load_recipe(summary["recipe"]) if summary["recipe"] else None
+    except RecipeError:  # a recipe of the user's own, not shipped with this version
+        recipe = None
+    env = sidecar.get("env", {})
+    rate = summary["success_rate"]
+    kept = [e["success"] for e in sidecar.get("episodes", [])]
+    goal = (f" Each episode's goal, `{recipe.goal}`, was reached in {100 * sum(kept) / len(kept):.0f}% of them."
+            if recipe is not None and recipe.goal != "success" and kept else "")
+    lines = [f"Recorded with policy-composer {version('policy-composer')} in the ManiSkill task GearAssembly-v1 "
+             "(two Panda arms: the left one picks a gear up and puts it onto a peg the right one holds), for a "
+             f"reproduction of *{PAPER}*.", ""]
+    if recipe is not None:
+        lines += [f"**Recipe `{recipe.name}`.** {recipe.description}", "", f"**Task.** {recipe.task}", ""]
+    lines += [f"**Size.** {summary['episodes']} episodes, {summary['frames']} frames at {summary['fps']} fps; the "
+              "task done in " + ("an unknown share of" if rate is None else f"{100 * rate:.0f}% of the") + " episodes."
+              + goal + (f" Splits: {summary['splits']}." if "splits" in summary else ""), "",
+              "**Cameras.** " + ", ".join(f"`observation.images.{c}` ({'x'.join(map(str, s))})"
+                                         for c, s in summary["cameras"].items())
+              + (f"; clearance between peg and hole {env['clearance_mm']} mm." if "clearance_mm" in env else "."), "",
+              "**State and action.** `observation.state`: both arms' 7 joint angles and gripper widths; `action`: "
+              "both arms' 7 joint targets (rad) and gripper commands (-1 closed, 1 open).", "",
+              "**Labels.**", *[f"- `{k}`: {v}" for k, v in LABELS.items() if k in summary["features"]]]
+    if summary["controllers"]:
+        lines += ["", f"**Controllers.** {', '.join(summary['controllers'])}."]
+    return {"dataset_description": "\n".join(lines), "paper": PAPER, "citation_bibtex": CITATION,
+            "url": "policy-composer (see its README)"}
+
+
+def dataset_card(root: str | Path, repo_id: str | None = None):
+    """The card `dataset push` uploads, built offline (a huggingface_hub DatasetCard)."""
+    from lerobot.datasets.utils import DatasetInfo, create_lerobot_dataset_card
+
+    return create_lerobot_dataset_card(tags=CARD_TAGS, dataset_info=DatasetInfo.from_dict(read_info(root)),
+                                       license="apache-2.0", repo_id=repo_id, **card_fields(root))
+
+
+def view_dataset(root: str | Path, episode: int, out: str | Path | None = None) -> Path | None:
+    """LeRobot's viewer (rerun) on one episode of a recorded dataset: every camera, the state and the action as
+    `lerobot-dataset-viz` shows them, and this project's labels (`progress`, `stage`, `controller`) beside them on
+    the same timeline. Saved as an .rrd file in `out` (returned), or shown in a rerun viewer."""
+    import rerun as rr
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+    from lerobot.scripts.lerobot_dataset_viz import visualize_dataset
+
+    root = Path(root)
+    journal.recover(root)
+    info = read_info(root)
+    if not 0 <= episode < info["total_episodes"]:
+        raise DatasetError(f"{root} has episodes 0 to {info['total_episodes'] - 1}, not {episode}")
+    dataset = LeRobotDataset(read_sidecar(root).get("repo_id", f"local/{root.name}"), root=root, episodes=[episode])
+    path = visualize_dataset(dataset, episode, num_workers=0, save=out is not None,
+                             output_dir=Path(out) if out is not None else None)
+    labels = [k for k in ("progress", "stage", "controller") if k in info["features"]]
+    frames = dataset.hf_dataset.select_columns(["frame_index", "timestamp", *labels])
+    for row in frames:  # lerobot's viewer puts each frame at its frame_index and timestamp: the same timeline
+        rr.set_time("frame_index", sequence=int(row["frame_index"]))
+        rr.set_time("timestamp", timestamp=float(row["timestamp"]))
+        for k in labels:
+            rr.log(k, rr.Scalars(float(row[k])))
+    rr.disconnect()  # flushes what was logged after lerobot saved the file
+    return path
+
+
 def push_dataset(root: str | Path, repo_id: str, private: bool = False, branch: str | None = None) -> str:
-    """Upload a local dataset with LeRobotDataset.push_to_hub; returns the dataset's Hub URL."""
+    """Upload a local dataset with LeRobotDataset.push_to_hub, with its card; returns the dataset's Hub URL."""
     root = Path(root)
     if not REPO_ID.match(repo_id):
         raise ValueError(f"--repo-id must look like USER/NAME (a Hugging Face dataset repo), not {repo_id!r}")
@@ -120,7 +213,7 @@ def push_dataset(root: str | Path, repo_id: str, private: bool = False, branch: 
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     dataset = LeRobotDataset(repo_id, root=root)
-    dataset.push_to_hub(branch=branch, private=private, tags=["policy-composer", "maniskill", "gear-assembly"])
+    dataset.push_to_hub(branch=branch, private=private, tags=CARD_TAGS, **card_fields(root))
     return f"https://huggingface.co/datasets/{repo_id}"
 
 

@@ -1,0 +1,55 @@
+"""GearAssembly-v1 as a LeRobot env type: `lerobot-eval --env.type=gear_assembly --env.task=insert|full`.
+
+LeRobot imports this package at start-up (it imports installed distributions named `lerobot_env_*`), which
+registers the config below; the env is `policy_composer.tasks.lerobot_env.GearAssemblyLeRobotEnv`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import partial
+
+from lerobot.configs import FeatureType, PolicyFeature
+from lerobot.envs.configs import EnvConfig
+from lerobot.utils.constants import ACTION, OBS_IMAGES, OBS_STATE
+
+from policy_composer.tasks.spec import ACTION_NAMES, CAMERA_NAMES, STATE_NAMES
+
+
+@EnvConfig.register_subclass("gear_assembly")
+@dataclass
+class GearAssemblyEnv(EnvConfig):
+    task: str | None = "insert"  # "insert": from the pre-insertion pose; "full": from the table
+    fps: int = 20  # the env's control frequency
+    resolution: int = 128  # camera images, pixels square (the datasets' default)
+    cameras: list[str] = field(default_factory=lambda: list(CAMERA_NAMES))
+    clearance_mm: float = 2.0
+
+    def __post_init__(self):
+        self.features = {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(len(ACTION_NAMES),)),
+                         "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(len(STATE_NAMES),))}
+        self.features_map = {ACTION: ACTION, "agent_pos": OBS_STATE}
+        for camera in self.cameras:
+            self.features[f"pixels/{camera}"] = PolicyFeature(type=FeatureType.VISUAL,
+                                                              shape=(self.resolution, self.resolution, 3))
+            self.features_map[f"pixels/{camera}"] = f"{OBS_IMAGES}.{camera}"
+
+    @property
+    def gym_kwargs(self) -> dict:
+        return {"task": self.task, "resolution": self.resolution, "cameras": tuple(self.cameras),
+                "clearance_mm": self.clearance_mm}
+
+    def create_envs(self, n_envs: int, use_async_envs: bool = False):
+        """{"gear_assembly": {0: a vector of n_envs envs}}, built directly (no gym registry entry to look up)."""
+        import gymnasium as gym
+        from gymnasium.vector import AutoresetMode
+
+        from policy_composer.tasks.lerobot_env import GearAssemblyLeRobotEnv
+
+        make = partial(GearAssemblyLeRobotEnv, **self.gym_kwargs)
+        if use_async_envs and n_envs > 1:
+            vec = gym.vector.AsyncVectorEnv([make] * n_envs, autoreset_mode=AutoresetMode.SAME_STEP,
+                                            context="forkserver")
+        else:
+            vec = gym.vector.SyncVectorEnv([make] * n_envs, autoreset_mode=AutoresetMode.SAME_STEP)
+        return {self.type: {0: vec}}

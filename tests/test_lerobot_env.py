@@ -1,0 +1,101 @@
+"""GearAssembly as a LeRobot env: LeRobot's conventions in the env, and `lerobot-eval` running a checkpoint trained
+on our dataset through the `lerobot_env_gear_assembly` plugin."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from policy_composer.tasks.lerobot_env import TASKS, GearAssemblyLeRobotEnv
+from policy_composer.tasks.spec import CAMERA_NAMES
+
+
+@pytest.fixture(scope="module")
+def insert_env():
+    env = GearAssemblyLeRobotEnv("insert", resolution=32)
+    yield env
+    env.close()
+
+
+def test_observations_and_success_in_lerobots_conventions(insert_env):
+    """LeRobot's preprocessing turns the env's observation into our datasets' feature names, and `is_success` turns
+    true when the demonstrator seats the gear."""
+    from lerobot.envs.utils import preprocess_observation
+
+    from policy_composer.tasks.gear_expert import GearAssemblyExpert
+
+    obs, info = insert_env.reset(seed=3)
+    assert insert_env.observation_space.contains(obs) and info == {"is_success": False}
+    batch = preprocess_observation({"pixels": {c: im[None] for c, im in obs["pixels"].items()},
+                                    "agent_pos": obs["agent_pos"][None]})
+    assert sorted(batch) == sorted([f"observation.images.{c}" for c in CAMERA_NAMES] + ["observation.state"])
+    assert batch["observation.images.head"].shape == (1, 3, 32, 32) and batch["observation.state"].shape == (1, 16)
+    assert insert_env.render().shape == (32, 32 * 3, 3) and insert_env.metadata["render_fps"] == 20
+    expert = GearAssemblyExpert(insert_env.env)  # the insertion demos' demonstrator, on the same start
+    expert.reset(3)
+    for _ in range(TASKS["insert"][1]):
+        obs, reward, terminated, truncated, info = insert_env.step(expert.act(None).numpy())
+        if terminated or truncated:
+            break
+    assert terminated and not truncated and info == {"is_success": True}, (insert_env._steps, info)
+
+
+def test_bad_task_or_camera_is_named():
+    with pytest.raises(ValueError, match="no task 'stack': choose one of insert, full"):
+        GearAssemblyLeRobotEnv("stack")
+    with pytest.raises(ValueError, match="cameras are head, left_forearm, right_forearm, not \\['wrist'\\]"):
+        GearAssemblyLeRobotEnv("insert", cameras=("wrist",))
+
+
+def test_lerobot_eval_runs_a_checkpoint_trained_on_our_dataset(act_checkpoint, tmp_path):
+    """`lerobot-eval --env.type=gear_assembly` finds the env through LeRobot's plugin discovery, runs two episodes
+    side by side (--eval.batch_size=2) and writes its results and videos."""
+    checkpoint, trained = act_checkpoint
+    assert trained.returncode == 0, (trained.stdout + trained.stderr)[-2000:]
+    out = tmp_path / "eval"
+    cmd = [str(Path(sys.executable).parent / "lerobot-eval"), f"--policy.path={checkpoint}", "--policy.device=cpu",
+           "--env.type=gear_assembly", "--env.task=insert", "--env.resolution=64", "--eval.n_episodes=2",
+           "--eval.batch_size=2", "--eval.use_async_envs=false", f"--output_dir={out}", "--seed=500"]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=900,
+                         env={**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"})
+    assert res.returncode == 0, (res.stdout + res.stderr)[-3000:]
+    info = json.loads((out / "eval_info.json").read_text())
+    (task,) = info["per_task"]
+    metrics = task["metrics"]
+    assert task["task_group"] == "gear_assembly" and info["overall"]["n_episodes"] == 2, info["overall"]
+    assert len(metrics["successes"]) == 2 and all(isinstance(s, bool) for s in metrics["successes"]), metrics
+    assert np.isfinite(metrics["sum_rewards"]).all() and len(list(out.rglob("*.mp4"))) == 2
+
+
+def recorded_entities(rrd: Path) -> set[str]:
+    from rerun.experimental import RrdReader
+
+    return {str(c.entity_path) for c in RrdReader(rrd).store().schema().component_columns()}
+
+
+def test_lerobots_viewer_opens_our_dataset(insertion_demos, tmp_path):
+    """`lerobot-dataset-viz` reads a recorded dataset offline and saves a rerun recording with every camera, the
+    state, the action and the success labels; `dataset view` adds the project's own labels on the same timeline."""
+    cmd = [str(Path(sys.executable).parent / "lerobot-dataset-viz"), f"--repo-id=local/{insertion_demos.name}",
+           f"--root={insertion_demos}", "--episode-index=1", "--save=1", f"--output-dir={tmp_path / 'lerobot'}",
+           "--num-workers=0"]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env={**os.environ, "HF_HUB_OFFLINE": "1"})
+    assert res.returncode == 0, (res.stdout + res.stderr)[-3000:]
+    cameras = {f"/observation.images.{c}" for c in CAMERA_NAMES}
+    lerobots = recorded_entities(tmp_path / "lerobot" / "local_gear-insertion-demos_episode_1.rrd")
+    assert cameras | {"/state", "/action", "/next.success", "/next.done"} <= lerobots, sorted(lerobots)
+    res = subprocess.run([str(Path(sys.executable).parent / "policy-composer"), "dataset", "view", str(insertion_demos),
+                          "--episode", "1", "--out", str(tmp_path / "ours")], capture_output=True, text=True,
+                         timeout=300)
+    assert res.returncode == 0, res.stderr[-3000:]
+    ours = recorded_entities(tmp_path / "ours" / "local_gear-insertion-demos_episode_1.rrd")
+    assert lerobots | {"/progress", "/stage", "/controller"} <= ours, sorted(ours)
+    res = subprocess.run([str(Path(sys.executable).parent / "policy-composer"), "dataset", "view", str(insertion_demos),
+                          "--episode", "5"], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 2 and "has episodes 0 to 1, not 5" in res.stderr, res.stderr[-2000:]
