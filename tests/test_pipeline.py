@@ -179,19 +179,19 @@ def test_the_main_job_runs_every_stage_reuses_them_and_writes_a_report_a_browser
     first = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=env, timeout=1200)
     assert first.returncode == 0, first.stdout[-3000:] + _messages(first.stderr)[-4000:]
     resumed = [line for line in first.stdout.splitlines() if line.startswith("[")]
-    assert ": reused " in resumed[0]  # the insertion demos, finished before the interrupt
-    assert resumed[1].startswith("[2/11] record the full-task") and resumed[1].endswith("(resuming)"), resumed[1]
+    assert ": reused " in resumed[0] and ": reused " in resumed[1]  # the demos finished before the interrupt
+    assert resumed[2].startswith("[3/12] record the full-task") and resumed[2].endswith("(resuming)"), resumed[2]
     second = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=env, timeout=600)
     assert second.returncode == 0, _messages(second.stderr)[-4000:]
     stage_lines = [line for line in second.stdout.splitlines() if line.startswith("[")]
-    assert len(stage_lines) == 11 and all(": reused " in line for line in stage_lines), second.stdout
+    assert len(stage_lines) == 12 and all(": reused " in line for line in stage_lines), second.stdout
 
     report = (tmp_path / "report.md").read_text()
     for row in ("| MP |", "| DMP |", "| CNN |", "| composed (selector) |", "| head |", "| left_forearm |",
                 "| right_forearm |", "planning steps to the goal", "| step | chosen |", "## Machine",
                 "(95% CI ", "| composed (selector) | picked "):
         assert row in report, f"{row!r} missing from the report"
-    assert "0 of 11 stages ran" in report
+    assert "0 of 12 stages ran" in report
 
     probe = _browser_check(tmp_path / "report.html")
     images = dict(probe["images"])
