@@ -18,62 +18,46 @@ def state_env():
     env.close()
 
 
-@pytest.fixture(scope="session")
-def insertion_demos(tmp_path_factory):
-    """Two insertion demonstrations at 64x64, recorded once for every test that needs a real dataset."""
+def record_dataset(tmp_path_factory, recipe: str, episodes: int, resolution: int, name: str | None = None,
+                   sources=None, **changes) -> Path:
+    """Record `episodes` of `recipe` (with `changes` to its fields) at `resolution` px into a new temporary folder."""
+    from dataclasses import replace
+
     from policy_composer.data.recipes import load_recipe
     from policy_composer.record import record_recipe
     from policy_composer.tasks.spec import EnvSettings
 
-    root = tmp_path_factory.mktemp("ds") / "gear-insertion-demos"
-    record_recipe(load_recipe("gear-insertion-demos"), root, episodes=2, settings=EnvSettings(resolution=64),
-                  progress=False)
+    root = tmp_path_factory.mktemp("ds") / (name or recipe)
+    record_recipe(replace(load_recipe(recipe), **changes), root, episodes=episodes,
+                  settings=EnvSettings(resolution=resolution), progress=False, sources=sources)
     return root
+
+
+@pytest.fixture(scope="session")
+def insertion_demos(tmp_path_factory):
+    """Two insertion demonstrations at 64x64, recorded once for every test that needs a real dataset."""
+    return record_dataset(tmp_path_factory, "gear-insertion-demos", episodes=2, resolution=64)
 
 
 @pytest.fixture(scope="session")
 def transport_demos(tmp_path_factory):
     """Two pick-up and carry demonstrations at 32x32: the CNN pick-up and move policies' data."""
-    from policy_composer.data.recipes import load_recipe
-    from policy_composer.record import record_recipe
-    from policy_composer.tasks.spec import EnvSettings
-
-    root = tmp_path_factory.mktemp("tr") / "gear-transport-demos"
-    record_recipe(load_recipe("gear-transport-demos"), root, episodes=2, settings=EnvSettings(resolution=32),
-                  progress=False)
-    return root
+    return record_dataset(tmp_path_factory, "gear-transport-demos", episodes=2, resolution=32)
 
 
 @pytest.fixture(scope="session")
 def full_task_demos(tmp_path_factory):
     """Three full-task demonstrations at 32x32, the first two for training, the third held out."""
-    from dataclasses import replace
-
-    from policy_composer.data.recipes import load_recipe
-    from policy_composer.record import record_recipe
-    from policy_composer.tasks.spec import EnvSettings
-
-    root = tmp_path_factory.mktemp("full") / "gear-full-task-demos"
-    recipe = replace(load_recipe("gear-full-task-demos"), train_episodes=2)
-    record_recipe(recipe, root, episodes=3, settings=EnvSettings(resolution=32), progress=False)
-    return root
+    return record_dataset(tmp_path_factory, "gear-full-task-demos", episodes=3, resolution=32, train_episodes=2)
 
 
 @pytest.fixture(scope="session")
 def controller_rollouts(tmp_path_factory):
     """One rollout each of mp_pick and mp_insert at 32x32 (head and left forearm cameras): the dynamics models' data."""
-    from dataclasses import replace
-
-    from policy_composer.data.recipes import load_recipe
     from policy_composer.policies.library import LibrarySources
-    from policy_composer.record import record_recipe
-    from policy_composer.tasks.spec import EnvSettings
 
-    recipe = replace(load_recipe("gear-controller-rollouts"), controllers=("mp_pick", "mp_insert"))
-    root = tmp_path_factory.mktemp("ro") / "rollouts"
-    record_recipe(recipe, root, episodes=1, settings=EnvSettings(resolution=32), progress=False,
-                  sources=LibrarySources(max_grasp_offset=0.0))
-    return root
+    return record_dataset(tmp_path_factory, "gear-controller-rollouts", episodes=1, resolution=32, name="rollouts",
+                          sources=LibrarySources(max_grasp_offset=0.0), controllers=("mp_pick", "mp_insert"))
 
 
 @pytest.fixture(scope="session")
