@@ -62,8 +62,9 @@ def hand_step(ik: LeftArmIK, command: np.ndarray, displacement: np.ndarray,
     joints."""
     command = command + quat2mat(np0(ik.arm.tcp.pose.q)) @ displacement
     lead = command - np0(ik.arm.tcp.pose.p)
-    if np.linalg.norm(lead) > MAX_LEAD:
-        command = command - lead * (1.0 - MAX_LEAD / np.linalg.norm(lead))
+    distance = float(np.linalg.norm(lead))
+    if distance > MAX_LEAD:
+        command = command - lead * (1.0 - MAX_LEAD / distance)
     q9, _ = ik.solve(sapien.Pose(command, quat), np0(ik.arm.robot.get_qpos()))
     return command, q9[:7]
 
