@@ -74,7 +74,7 @@ class SceneCollisionModel:
     def set_scene(self, right_qpos: np.ndarray, peg_module_pose, spec, table: bool = True,
                   held: HeldObject | None = None, fingers: float = 0.04) -> None:
         """Place the obstacles for the next plans (world poses as sapien.Pose; right_qpos: 9 values; spec: the
-        env's GearSpec, for the peg module's shape)."""
+        env's GearSpec, for the peg module's shape; no peg module where `peg_module_pose` is None)."""
         geom = self._robot_geom.copy()
         to_left = _se3(LEFT_BASE).inverse()
         obstacles = []
@@ -93,12 +93,13 @@ class SceneCollisionModel:
         for i, g in enumerate(self._robot_geom.geometryObjects):
             add(f"right_{g.name}", g.geometry, right_base * self._fk_gdata.oMg[i])
         # The peg module the right hand holds (see policy_composer.tasks.gear_geometry.build_peg_module).
-        module = _se3(peg_module_pose)
-        hx, hy, hz = spec.plate_half_size
-        add("plate", coal.Box(2 * hx, 2 * hy, 2 * hz),
-            module * pin.SE3(np.eye(3), np.array([-spec.peg_offset - 0.03 + hx, 0.0, -hz])))
-        add("peg", coal.Cylinder(spec.peg_radius, spec.peg_height),
-            module * pin.SE3(np.eye(3), np.array([0.0, 0.0, spec.peg_height / 2])))
+        if peg_module_pose is not None:
+            module = _se3(peg_module_pose)
+            hx, hy, hz = spec.plate_half_size
+            add("plate", coal.Box(2 * hx, 2 * hy, 2 * hz),
+                module * pin.SE3(np.eye(3), np.array([-spec.peg_offset - 0.03 + hx, 0.0, -hz])))
+            add("peg", coal.Cylinder(spec.peg_radius, spec.peg_height),
+                module * pin.SE3(np.eye(3), np.array([0.0, 0.0, spec.peg_height / 2])))
 
         robot = self._robot_link_geoms()
         for o in obstacles:

@@ -28,7 +28,7 @@ from policy_composer.policies.arm import (
     Segment,
     np0,
 )
-from policy_composer.policies.planning import VELOCITY_LIMIT, PlanningError
+from policy_composer.policies.planning import VELOCITY_LIMIT, PlanningError, SceneCollisionModel
 from policy_composer.tasks.gear_assembly import CARRY_CLEARANCE, INSERT_TILT_DEG, PRE_INSERT_RADIUS
 from policy_composer.tasks.gear_kinematics import LeftArmIK
 
@@ -359,7 +359,10 @@ def check_camera(env, camera: str, who: str) -> None:
 class LearnedController(LeftArmController):
     """A closed-loop learned policy run for one subtask: it acts every step until the subtask is achieved (and, for one
     that releases the gear, the hand has let go), or its step budget is spent. Subclasses give
-    `predict(obs) -> (7 joint targets, gripper)`."""
+    `predict(obs) -> (7 joint targets, gripper)`.
+
+    A command that would put the left arm into the right one (or into itself) stops the controller before it is
+    sent: a policy that wandered there leaves an arm from which no plan starts (its start "in collision")."""
 
     action_kind = "joint_targets"
 
@@ -367,16 +370,19 @@ class LearnedController(LeftArmController):
         super().__init__(env)
         self.subtask, self.name, self.initiation, self.max_steps = subtask, name, subtask.initiation, max_steps
         self.ik = LeftArmIK(self.env)
+        self.guard = SceneCollisionModel()
 
     def can_start(self, obs) -> bool:
         return self.subtask.can_start(self.scene)
 
     def succeeded(self, info):
-        return self.subtask.succeeded(info)
+        return (False, self._stopped) if self._stopped else self.subtask.succeeded(info)
 
     def reset(self, obs, seed=None):
         super().reset(obs, seed)
-        self._steps = 0
+        self._steps, self._stopped = 0, ""
+        # The right arm where its joints say it stands; nothing else (the gear meets the peg when inserting).
+        self.guard.set_scene(np0(self.env.right_arm.robot.get_qpos()), None, self.scene.spec, table=False)
 
     def next_command(self, obs):
         info = self.scene.info()
@@ -386,7 +392,11 @@ class LearnedController(LeftArmController):
             return None
         self._steps += 1
         q, gripper = self.predict(obs)
-        return self.limit_step(q), gripper
+        q = self.limit_step(q)
+        if self.guard.in_collision(q):
+            self._stopped = f"stopped before a command that collides: {self.guard.colliding_pairs(q)[:2]}"
+            return None
+        return q, gripper
 
     def limit_step(self, q: np.ndarray) -> np.ndarray:
         """Joint targets `q`, with the step from the last command scaled down (its direction kept) so that no joint

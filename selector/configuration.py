@@ -15,9 +15,11 @@ from policy_composer.tasks.spec import CAMERA_NAMES
 
 @dataclass
 class VAEConfig:
-    """The latent state s_t: a variational autoencoder of one camera's images (the paper uses the head camera)."""
+    """The latent state s_t: a variational autoencoder of one camera's images. The paper uses the head camera;
+    here the arm hides the insertion from it (its goal score is the same for a gear held above the peg and one
+    seated on it), so the selector sees through the left forearm camera, which watches the gear in the hand."""
 
-    camera: str = option("head", "the camera whose images make the latent state", CAMERA_NAMES)
+    camera: str = option("left_forearm", "the camera whose images make the latent state", CAMERA_NAMES)
     image_size: int = option(64, "images are resized to this square", minimum=16)
     latent_dim: int = option(32, "size of the latent state", minimum=1)
     beta: float = 1.0  # weight of the KL term against the per-image reconstruction error (summed over pixels)

@@ -34,7 +34,7 @@ from transforms3d.euler import euler2quat
 
 from policy_composer.tasks import panda_light  # noqa: F401  (registers the "panda_light" agent)
 from policy_composer.tasks.gear_geometry import GearSpec, build_gear, build_peg_module
-from policy_composer.tasks.gear_kinematics import LeftArmIK, plate_direction
+from policy_composer.tasks.gear_kinematics import REST_QPOS, LeftArmIK, plate_direction
 from policy_composer.tasks.spec import ACTION_NAMES, ARM_JOINTS, CAMERA_NAMES, START_STATES, STATE_NAMES  # noqa: F401
 
 SUPPORTED_ROBOTS = (("panda_light", "panda_light"), ("panda", "panda"))
@@ -42,7 +42,6 @@ SUPPORTED_CONTROL_MODES = ("pd_joint_pos", "pd_joint_delta_pos")
 
 LEFT_BASE = sapien.Pose(p=[0.0, -0.7, 0.0], q=euler2quat(0, 0, np.pi / 2))
 RIGHT_BASE = sapien.Pose(p=[0.0, 0.7, 0.0], q=euler2quat(0, 0, -np.pi / 2))
-REST_QPOS = np.array([0.0, np.pi / 8, 0.0, -np.pi * 5 / 8, 0.0, np.pi * 3 / 4, np.pi / 4, 0.04, 0.04])
 # The left arm starts retracted above its own side of the table, hand down, clear of the peg.
 LEFT_START_QPOS = np.array([0.0, -0.25, 0.0, -2.55, 0.0, 2.30, np.pi / 4, 0.04, 0.04])
 HEAD_EYE, HEAD_TARGET = [0.35, -0.10, 0.70], [0.0, -0.10, 0.05]
@@ -55,8 +54,9 @@ FOREARM_VIEWS = {"left": ([-0.08, 0.06, 0.08], [0.0, 0.0, 0.15]), "right": ([0.1
 # Bump when a change alters what the task simulates or renders: the main job's recording stages key on it, so
 # recordings made before the change are not reused after it.
 # 2: the right forearm camera sees the peg; 3: the scene is rebuilt at every reset; 4: a gear tilted on the peg is
-# not inserted; 5: the pre_insertion start (Table I's insert column and the insertion controllers' rollouts start there)
-TASK_REVISION = 5
+# not inserted; 5: the pre_insertion start (Table I's insert column and the insertion controllers' rollouts start there);
+# 6: the expert backs off after the release at the controllers' speed (policy_composer.tasks.gear_expert)
+TASK_REVISION = 6
 GEAR_XY_CENTER = (0.0, -0.30)
 GEAR_XY_RANGE = (0.10, 0.06)  # half-ranges of the gear's uniform position on the table
 PLATE_GRIP = 0.024  # right finger position holding the plate

@@ -32,6 +32,9 @@ class ExpertConfig:
     max_step: float = 0.012  # TCP travel per control step (m)
     insert_step: float = 0.004  # descent per control step while inserting (m)
     release_height: float = 0.012  # gear bottom above the plate when the gripper opens (m)
+    # TCP travel per control step backing off after the release: the library's insertions back off at this
+    # speed, and so many frames of a seated gear teach the goal score what a finished insertion looks like.
+    retreat_step: float = 0.006
     seed: int | None = None  # grasp-offset RNG; None: drawn from the env's episode seed
     closed_loop: bool = True  # False: carry and insert assume a centred grasp (what an open-loop planner knows)
     # Teleoperator style (for demonstrations): carry roughly (as if the grasp were centred, off by up to a further
@@ -164,7 +167,7 @@ class GearAssemblyExpert:
                 self._retreat_p = self._cmd_p + [0, 0, 0.10]
                 self.phase = "retreat"
         elif self.phase == "retreat":
-            target, dist = self._toward(self._retreat_p, cfg.max_step)
+            target, dist = self._toward(self._retreat_p, cfg.retreat_step)
             if dist < 1e-3:
                 self.phase = "done"
         action = self._hold.copy()

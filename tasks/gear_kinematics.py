@@ -17,6 +17,8 @@ ARM_MASK = np.array([1] * 7 + [0, 0], dtype=np.int32)  # solve for the 7 arm joi
 # Franka Panda arm joint limits (rad), as in the URDF.
 JOINT_LOW = np.array([-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973])
 JOINT_HIGH = np.array([2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973])
+# Both arms' configuration at reset (arm joints and fingers).
+REST_QPOS = np.array([0.0, np.pi / 8, 0.0, -np.pi * 5 / 8, 0.0, np.pi * 3 / 4, np.pi / 4, 0.04, 0.04])
 
 
 class LeftArmIK:
@@ -55,15 +57,20 @@ class LeftArmIK:
                         q_seed: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """(quat, q) putting the TCP at p with the hand down. The gripper is symmetric, so of the two finger
         directions (+-finger_dir) take the one whose solution is within the joint limits and nearest q_seed;
-        None if neither is."""
-        best = None
-        for quat in (hand_down_quat(finger_dir), hand_down_quat(-np.asarray(finger_dir))):
-            q, ok = self.solve(sapien.Pose(p, quat), q_seed)
-            if ok and np.all(q[:7] >= JOINT_LOW) and np.all(q[:7] <= JOINT_HIGH):
-                cost = float(np.abs(q[:7] - np.asarray(q_seed)[:7]).sum())
-                if best is None or cost < best[0]:
-                    best = (cost, quat, q)
-        return None if best is None else (best[1], best[2])
+        None if neither is. Where the solver finds neither from q_seed (an arm left contorted by a learned
+        controller), it starts again from the rest configuration: the goal is the same pose either way."""
+        q_seed = np.asarray(q_seed, dtype=float)
+        for start in (q_seed, np.concatenate([REST_QPOS[:7], q_seed[7:]])):
+            best = None
+            for quat in (hand_down_quat(finger_dir), hand_down_quat(-np.asarray(finger_dir))):
+                q, ok = self.solve(sapien.Pose(p, quat), start)
+                if ok and np.all(q[:7] >= JOINT_LOW) and np.all(q[:7] <= JOINT_HIGH):
+                    cost = float(np.abs(q[:7] - q_seed[:7]).sum())
+                    if best is None or cost < best[0]:
+                        best = (cost, quat, q)
+            if best is not None:
+                return best[1], best[2]
+        return None
 
 
 class PandaForwardKinematics:

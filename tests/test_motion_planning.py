@@ -27,6 +27,7 @@ from policy_composer.policies.planning import (
 )
 from policy_composer.policies.subtasks import SUBTASKS, Insert, LearnedController
 from policy_composer.tasks.gear_assembly import LEFT_START_QPOS
+from policy_composer.tasks.gear_kinematics import hand_down_quat
 
 
 def _scene(env) -> SceneCollisionModel:
@@ -365,3 +366,48 @@ def test_an_insertion_that_tips_the_gear_in_the_fingers_backs_off(state_env):
     assert presses.outcome is Outcome.FAILED, presses.reason
     assert presses.reason.startswith("backed off: the gear tipped"), presses.reason
     assert presses.scene.info()["gear_grasped"] and presses.scene.gear_tilt() < 3 * INSERT_TILT_DEG
+
+
+def test_a_learned_controller_stops_before_a_command_into_the_right_arm(state_env):
+    """A policy reaching for the right hand (as the CNN move did, leaving an arm no plan starts from) stops before
+    the command that collides, with the arm clear of the right one; the next plan's start is valid (checked: unguarded,
+    the same policy drives the arm into it)."""
+
+    class Reaches(LearnedController):
+        def can_start(self, obs):
+            return True
+
+        def predict(self, obs):
+            return self.target, -1.0
+
+    obs, _ = state_env.reset(seed=0)
+    u = state_env.unwrapped
+    reaches = Reaches(state_env, SUBTASKS["pick"], "reaches", max_steps=200)
+    right_hand = u.right_arm.tcp.pose.p[0].numpy()
+    q, _ = reaches.ik.solve(sapien.Pose(right_hand + [0, 0, 0.05], [0, 1, 0, 0]),
+                            np.concatenate([reaches.left_qpos(obs), [0.04, 0.04]]))
+    reaches.target = q[:7]
+    scene = _scene(state_env)
+    assert scene.in_collision(reaches.target)
+    obs = run_activation(state_env, reaches, obs, seed=0)
+    assert reaches.outcome is Outcome.FAILED and reaches._steps < 200
+    assert reaches.reason.startswith("stopped before a command that collides") and "right_panda" in reaches.reason
+    assert not scene.in_collision(reaches.left_qpos(obs))
+
+
+def test_the_goal_pose_is_found_from_an_arm_left_contorted(state_env):
+    """The moves' goal configuration (the hand down at the pre-insertion pose) is solved for from the measured joints;
+    where the solver finds none from there, from the rest configuration."""
+    from policy_composer.policies.arm import SceneGeometry
+    from policy_composer.tasks.gear_kinematics import JOINT_HIGH, JOINT_LOW, LeftArmIK
+
+    state_env.reset(seed=0)
+    ik, scene = LeftArmIK(state_env), SceneGeometry(state_env)
+    contorted = np.concatenate([JOINT_LOW + 0.05, [0.04, 0.04]])
+    target = scene.pre_insertion_tcp()
+    for quat in (hand_down_quat(scene.finger_dir()), hand_down_quat(-scene.finger_dir())):
+        q, ok = ik.solve(sapien.Pose(target, quat), contorted)
+        assert not ok or np.any(q[:7] < JOINT_LOW) or np.any(q[:7] > JOINT_HIGH)  # from there, none within limits
+    quat, q = ik.solve_hand_down(target, scene.finger_dir(), contorted)
+    np.testing.assert_allclose(ik.tcp_positions(q[None, :7])[0], target, atol=1e-3)
+    assert np.all(q[:7] >= JOINT_LOW) and np.all(q[:7] <= JOINT_HIGH)
