@@ -56,7 +56,7 @@ def main() -> None:
     dynamics = {n: LatentDynamics(DynamicsConfig(controller=n)).eval() for n in all_names()}
     world = GearWorldModel(vae, dynamics, GoalScoreModel(goal_config).eval())
     selector = world.selector(horizon=10, samples=16, seed=0)
-    obs = {"sensor_data": {"head": {"rgb": torch.randint(0, 255, (1, 128, 128, 3), dtype=torch.uint8)}}}
+    obs = {"sensor_data": {world.camera: {"rgb": torch.randint(0, 255, (1, 128, 128, 3), dtype=torch.uint8)}}}
     encode = timed(lambda: world.encode(obs), args.decisions)
     decide = timed(lambda: selector.decide(world.encode(obs)), args.decisions)
     print(f"reference: encode one 128x128 image with the VAE: {encode * 1000:.1f} ms")

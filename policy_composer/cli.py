@@ -35,15 +35,21 @@ def _sources(args: argparse.Namespace):
 
 
 def _lerobot_source(spec: str) -> LeRobotSource:
-    """--lerobot PATH:SUBTASK, checked before any work starts."""
+    """--lerobot PATH:SUBTASK[:NAME], checked before any work starts."""
     path, _, subtask = spec.rpartition(":")
     subtasks = tuple(dict.fromkeys(s for k in kinds().values() for s in k.subtasks))
+    name = None
+    if subtask not in subtasks and path.rpartition(":")[2] in subtasks:  # PATH:SUBTASK:NAME
+        (path, _, subtask), name = path.rpartition(":"), subtask
     if not path or subtask not in subtasks:
-        raise LibraryError(f"--lerobot {spec!r}: give PATH:SUBTASK, SUBTASK one of {', '.join(subtasks)}")
+        raise LibraryError(f"--lerobot {spec!r}: give PATH:SUBTASK or PATH:SUBTASK:NAME, SUBTASK one of "
+                           f"{', '.join(subtasks)}")
+    if name is not None and not name.isidentifier():
+        raise LibraryError(f"--lerobot {spec!r}: the controller's name must be letters, digits and _, not {name!r}")
     if not (Path(path) / "config.json").is_file():
         raise LibraryError(f"--lerobot {spec!r}: no LeRobot policy checkpoint at {path} (expected the "
                            f"`pretrained_model` folder that lerobot-train saves, with its config.json)")
-    return LeRobotSource(path, subtask)
+    return LeRobotSource(path, subtask, name)
 
 
 def _make_env(obs_mode: str, args: argparse.Namespace, cameras: tuple[str, ...] | None = None, **kwargs):
@@ -308,6 +314,20 @@ def cmd_compose(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_library_add(args: argparse.Namespace) -> int:
+    """A LeRobot checkpoint joins the library: its rollouts, its dynamics model, its Table I cell."""
+    from policy_composer.adding import add_lerobot_controller
+
+    source = _lerobot_source(args.lerobot)
+    added = add_lerobot_controller(source, args.rollouts, args.demos, args.models, args.episodes, args.trials,
+                                   args.seed)
+    for what, seconds in added["timings"].items():
+        print(f"{what}: {seconds:.0f} s")
+    print(f"{added['controller']} alone on {added['subtask']}: {added['cell']}")
+    print(f"compose with it: policy-composer compose --models {args.models} --lerobot {args.lerobot}")
+    return 0
+
+
 def cmd_dataset_drop(args: argparse.Namespace) -> int:
     """Remove a controller's rollouts (then record them again with `record gear-controller-rollouts --resume`)."""
     from policy_composer.data.catalog import drop_controller
@@ -337,9 +357,9 @@ def build_parser() -> argparse.ArgumentParser:
             if kind.model_path:
                 p.add_argument(f"--{kind.name}", default=kind.model_path,
                                help=f"{kind.label} model ({kind.train_command})")
-        p.add_argument("--lerobot", action="append", default=[], metavar="PATH:SUBTASK",
-                       help="a lerobot checkpoint as controller lerobot_SUBTASK for SUBTASK (it needs its own "
-                            "dynamics model to be composed)")
+        p.add_argument("--lerobot", action="append", default=[], metavar="PATH:SUBTASK[:NAME]",
+                       help="a lerobot checkpoint as controller NAME (default lerobot_SUBTASK) for SUBTASK (it "
+                            "needs its own dynamics model to be composed: `policy-composer library add`)")
 
     demo = sub.add_parser("demo", help="the main job: record, train, evaluate, compose, the MDP, the report")
     demo.add_argument("--profile", default="quick", choices=tuple(PROFILES),
@@ -433,6 +453,22 @@ def build_parser() -> argparse.ArgumentParser:
                          help="keep the episodes already in --out; run the other seeds")
     compose.add_argument("--out", default="results/compose")
     compose.set_defaults(func=cmd_compose)
+
+    library = sub.add_parser("library", help="grow the library of controllers")
+    lib_sub = library.add_subparsers(dest="library_command", required=True)
+    add = lib_sub.add_parser("add", help="a LeRobot checkpoint joins the library: its rollouts, its dynamics model "
+                                         "and its Table I cell, after which `compose --lerobot` chooses it")
+    add.add_argument("--lerobot", required=True, metavar="PATH:SUBTASK[:NAME]",
+                     help="the `pretrained_model` folder lerobot-train saved, the subtask it does, and the "
+                          "controller's name (default lerobot_SUBTASK)")
+    add.add_argument("--rollouts", default=_dataset("gear-controller-rollouts"),
+                     help="the library's rollouts dataset; its own settings are kept")
+    add.add_argument("--demos", default=_dataset("gear-full-task-demos"))
+    add.add_argument("--models", default=WORLD, help="the world-model folder its dynamics model joins")
+    add.add_argument("--episodes", type=at_least(1), default=20, help="its rollouts (for its dynamics model)")
+    add.add_argument("--trials", type=at_least(1), default=20, help="its Table I trials on its subtask")
+    add.add_argument("--seed", type=at_least(0), default=200, help="first seed of its Table I trials")
+    add.set_defaults(func=cmd_library_add)
 
     record = sub.add_parser("record", help="record a dataset recipe (datasets/recipes/) into a LeRobotDataset")
     record.add_argument("recipe", help="recipe name (gear-insertion-demos, gear-full-task-demos, "

@@ -48,11 +48,13 @@ def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None,
         check_resume(root, previous, recipe, seed, settings, models)
         settings, seed = EnvSettings(**previous["env"]), previous["next_seed"]
     settings, seed = settings or EnvSettings(), seed or 0
+    needed = cameras_needed(controllers, sources)
     if not previous:  # the recipe's cameras, and any others its controllers read
-        needed = cameras_needed(controllers, sources)
         settings = replace(settings, cameras=tuple(dict.fromkeys((*recipe.cameras, *needed))))
-    env = make_env("rgb", settings.resolution, settings.clearance_mm, settings.cameras)
-    recorder = LeRobotRecorder(env, root, task=recipe.task, resume=resume,
+    # A resumed dataset keeps its cameras; a controller added to it may read more, which are rendered, not recorded.
+    rendered = tuple(dict.fromkeys((*settings.cameras, *needed)))
+    env = make_env("rgb", settings.resolution, settings.clearance_mm, rendered)
+    recorder = LeRobotRecorder(env, root, task=recipe.task, resume=resume, cameras=settings.cameras,
                                metadata={"recipe": recipe.name, "env": asdict(settings), "controller_models": models,
                                          "expert": asdict(recipe.expert), "train_episodes": recipe.train_episodes})
     recorded = Counter(e.get("controller_name") for e in recorder.episodes)  # per controller, when resuming

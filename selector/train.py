@@ -42,17 +42,15 @@ def train_world_model(rollouts: str | Path, demos: str | Path, out: str | Path, 
     """VAE, then every controller's dynamics model; returns the training time of each (s). With `reuse_vae`,
     the VAE already in `out` is kept (to add or retrain some controllers' dynamics models)."""
     out = Path(out)
-    vae_config = vae_config or VAEConfig()
+    vae = load_vae(out / "vae") if reuse_vae else None
+    vae_config = vae.config if vae is not None else vae_config or VAEConfig()  # a kept VAE keeps its camera
     dynamics_config = dynamics_config or DynamicsConfig()
     camera, size = vae_config.camera, vae_config.image_size
     check_recipe(rollouts, "gear-controller-rollouts", "the dynamics models")
     check_recipe(demos, "gear-full-task-demos", "the VAE")
     ro = load_frames(rollouts, (camera,), size, required={"controller": (1,)}, progress=progress)
     timings = {}
-    if reuse_vae:
-        vae = load_vae(out / "vae")
-        vae_config = vae.config
-    else:
+    if vae is None:
         demo = load_frames(demos, (camera,), size, demo_split(demos, "train"), progress=progress)
         t0 = time.perf_counter()
         vae, _ = train_vae(torch.cat([ro[image_key(camera)], demo[image_key(camera)]]), vae_config, out / "vae",

@@ -54,8 +54,8 @@ FOREARM_VIEWS = {"left": ([-0.08, 0.06, 0.08], [0.0, 0.0, 0.15]), "right": ([0.1
 # Bump when a change alters what the task simulates or renders: the main job's recording stages key on it, so
 # recordings made before the change are not reused after it.
 # 2: the right forearm camera sees the peg; 3: the scene is rebuilt at every reset; 4: a gear tilted on the peg is
-# not inserted; 5: the pre_insertion start (Table I's insert column and the insertion controllers' rollouts start there);
-# 6: the expert backs off after the release at the controllers' speed (policy_composer.tasks.gear_expert)
+# not inserted; 5: the pre_insertion start (Table I's insert column and the insertion controllers' rollouts start
+# there); 6: the expert backs off after the release at the controllers' speed (policy_composer.tasks.gear_expert)
 TASK_REVISION = 6
 GEAR_XY_CENTER = (0.0, -0.30)
 GEAR_XY_RANGE = (0.10, 0.06)  # half-ranges of the gear's uniform position on the table

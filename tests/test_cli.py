@@ -44,8 +44,10 @@ def run_cli(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:
     (("train", "policy", "--image-size", "4"), "argument --image-size: must be at least 16, not 4"),
     (("train", "world-model", "--camera", "wrist"), "argument --camera: invalid choice: 'wrist'"),
     (("compose", "--lerobot", "nowhere:insert"), "no LeRobot policy checkpoint at nowhere"),
-    (("compose", "--lerobot", "nowhere"), "give PATH:SUBTASK, SUBTASK one of pick, move, insert"),
+    (("compose", "--lerobot", "nowhere"), "give PATH:SUBTASK or PATH:SUBTASK:NAME, SUBTASK one of pick, move, insert"),
     (("record", "gear-insertion-demos", "--lerobot", "ckpt:fly"), "give PATH:SUBTASK"),
+    (("library", "add", "--lerobot", "ckpt:insert:act-1"), "the controller's name must be letters, digits and _"),
+    (("library", "add", "--lerobot", "nowhere:insert:act_insert"), "no LeRobot policy checkpoint at nowhere"),
 ])
 def test_a_bad_value_is_refused_before_any_work(tmp_path, args, message):
     """Values out of range, of the wrong type, or naming what does not exist: exit 2, one line that names the flag

@@ -183,7 +183,7 @@ def test_a_composed_episode_runs_end_to_end(world):
     on its seed only."""
     root, _ = world
     model = GearWorldModel.load(root)
-    env = gym.make("GearAssembly-v1", obs_mode="rgb", cameras=("head",), camera_width=SIZE, camera_height=SIZE)
+    env = gym.make("GearAssembly-v1", obs_mode="rgb", cameras=(model.camera,), camera_width=SIZE, camera_height=SIZE)
     library = build_library(env, ["mp_pick", "mp_insert"], LibrarySources(max_grasp_offset=0.0))
     frames = []
     config = ComposeConfig(horizon=3, samples=4, max_steps=150)

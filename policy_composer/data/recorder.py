@@ -44,10 +44,12 @@ def _flat(action, env) -> np.ndarray:
 
 
 class LeRobotRecorder(gym.Wrapper):
-    """Wraps a single GearAssembly-v1 env (obs_mode "rgb") and saves chosen episodes to a LeRobotDataset."""
+    """Wraps a single GearAssembly-v1 env (obs_mode "rgb") and saves chosen episodes to a LeRobotDataset, with
+    `cameras` (default: every camera the env renders; the env may render more, for a controller that reads them)."""
 
     def __init__(self, env: gym.Env, root: str | Path, task: str, repo_id: str | None = None, resume: bool = False,
-                 metadata: dict | None = None, vcodec: str = VCODEC, streaming_encoding: bool = True):
+                 metadata: dict | None = None, vcodec: str = VCODEC, streaming_encoding: bool = True,
+                 cameras: tuple[str, ...] | None = None):
         super().__init__(env)
         from lerobot.configs.video import RGBEncoderConfig
 
@@ -63,7 +65,11 @@ class LeRobotRecorder(gym.Wrapper):
         width, height = u.camera_size
         if width != height:
             raise ValueError(f"recordings use square camera images; got {width}x{height}")
-        self.cameras = tuple(u.camera_names)
+        self.cameras = tuple(cameras or u.camera_names)
+        missing = [c for c in self.cameras if c not in u.camera_names]
+        if missing:
+            raise ValueError(f"the recorder records cameras {missing} that the env does not render; make the env "
+                             f"with them")
         self.features = dataset_features(self.cameras, width)
         self.recording = True
         self.controller = "unknown"  # set by the driver: the controller whose action the next step applies
