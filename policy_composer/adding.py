@@ -43,20 +43,18 @@ def add_lerobot_controller(source: LeRobotSource, rollouts: str | Path, demos: s
     if not (models / "vae" / "config.json").is_file() or not others:
         raise LibraryError(f"{models} holds no world model to add to; train it first (`policy-composer train "
                            f"world-model --rollouts {rollouts} --out {models}`)")
-    sources = LibrarySources(lerobot=(source,))
+    sources, settings = LibrarySources(lerobot=(source,)), EnvSettings(**read_sidecar(rollouts)["env"])
     timings = {}
     t0 = time.perf_counter()
     record_recipe(replace(load_recipe("gear-controller-rollouts"), controllers=(name,)), rollouts, episodes=episodes,
-                  resume=True, settings=EnvSettings(**read_sidecar(rollouts)["env"]), sources=sources,
-                  progress=progress)
+                  resume=True, settings=settings, sources=sources, progress=progress)
     timings["rollouts"] = time.perf_counter() - t0
     dynamics = replace(load_dynamics(others[0]).config, controller=name)
     torch.set_num_threads(2)
     timings.update(train_world_model(rollouts, demos, models, dynamics_config=dynamics, controllers=[name],
                                      reuse_vae=True, progress=progress))
     t0 = time.perf_counter()
-    env_settings = read_sidecar(rollouts)["env"]
-    env = make_env("rgb", env_settings["resolution"], env_settings["clearance_mm"], cameras_needed([name], sources))
+    env = make_env("rgb", settings.resolution, settings.clearance_mm, cameras_needed([name], sources))
     try:
         controller = build_library(env, [name], sources)[name]
         row = evaluate_kind(env, {source.subtask: controller}, trials, seed)
