@@ -136,8 +136,8 @@ def _composition(composed: list[ComposedEpisode], video: str | None, knock_video
     lines = ["## The selector composing the library", ""]
     if video:
         lines += [f'<video src="{video}" controls muted preload="metadata" width="512"></video>', "",
-                  f"[Composed rollout, seed {composed[0].seed}]({video}): the head camera, the running controller "
-                  "and the goal score of the current image."]
+                  f"[Composed rollout, seed {composed[0].seed}]({video}): the selector's camera (the world model's), "
+                  "the running controller and the goal score of the current image."]
     if knock_video:
         lines += ["", f'<video src="{knock_video}" controls muted preload="metadata" width="512"></video>', "",
                   f"[The gear knocked out at step 100]({knock_video}): the selector picks a pick-up again."]
