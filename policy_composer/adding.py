@@ -13,7 +13,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from policy_composer.controller_table import Cell, evaluate_kind
+from policy_composer.controller_table import evaluate_controllers
 from policy_composer.data.features import read_sidecar
 from policy_composer.data.recipes import load_recipe
 from policy_composer.policies.library import LeRobotSource, LibraryError, LibrarySources, all_names
@@ -26,11 +26,9 @@ def add_lerobot_controller(source: LeRobotSource, rollouts: str | Path, demos: s
     `models`, and run it `trials` times on its subtask from seed `seed`. Returns the timings (s) and the cell."""
     import torch
 
-    from policy_composer.policies.library import build_library, cameras_needed
     from policy_composer.record import record_recipe
     from policy_composer.selector.dynamics import load_dynamics
     from policy_composer.selector.train import train_world_model
-    from policy_composer.tasks.rollout import make_env
 
     rollouts, models, name = Path(rollouts), Path(models), source.controller_name
     if name in all_names():
@@ -54,12 +52,7 @@ def add_lerobot_controller(source: LeRobotSource, rollouts: str | Path, demos: s
     timings.update(train_world_model(rollouts, demos, models, dynamics_config=dynamics, controllers=[name],
                                      reuse_vae=True, progress=progress))
     t0 = time.perf_counter()
-    env = make_env("rgb", settings.resolution, settings.clearance_mm, cameras_needed([name], sources))
-    try:
-        controller = build_library(env, [name], sources)[name]
-        row = evaluate_kind(env, {source.subtask: controller}, trials, seed)
-    finally:
-        env.close()
+    row = evaluate_controllers([name], sources, trials, seed, settings.resolution, settings.clearance_mm, progress,
+                               f"{name} on {source.subtask}")
     timings["evaluation"] = time.perf_counter() - t0
-    cell: Cell = row[source.subtask]
-    return {"controller": name, "subtask": source.subtask, "cell": cell, "timings": timings}
+    return {"controller": name, "subtask": source.subtask, "cell": row[source.subtask], "timings": timings}

@@ -116,27 +116,36 @@ def evaluate_kind(env, controllers: dict[str, object], trials: int, first_seed: 
     return row
 
 
-def evaluate_table(kinds: list[str], sources, trials: int, first_seed: int = 0, resolution: int = 128,
-                   clearance_mm: float = 2.0, progress: bool = True) -> dict[str, dict[str, Cell]]:
-    """Rows of Table I for `kinds` (MP, DMP, CNN): each kind's controllers in an env with the cameras they need."""
-    import torch
+def evaluate_controllers(names, sources, trials: int, first_seed: int = 0, resolution: int = 128,
+                         clearance_mm: float = 2.0, progress: bool = True,
+                         label: str = "controllers") -> dict[str, Cell]:
+    """One row of Table I: the named controllers (one per subtask) in an env with the cameras they need."""
     from tqdm import tqdm
 
-    from policy_composer.policies.library import build_library, cameras_needed, names_of_kind
+    from policy_composer.policies.library import build_library, cameras_needed
     from policy_composer.tasks.rollout import make_env
 
-    torch.set_num_threads(1)
-    rows = {}
-    for kind in kinds:
-        names = names_of_kind(kind)
-        cameras = cameras_needed(names, sources)
-        env = make_env("rgb" if cameras else "state_dict", resolution, clearance_mm, cameras or None)
+    cameras = cameras_needed(names, sources)
+    env = make_env("rgb" if cameras else "state_dict", resolution, clearance_mm, cameras or None)
+    try:
         controllers = {c.subtask.name: c for c in build_library(env, names, sources).values()}
         columns = sum(all(s in controllers for s in SEQUENCES[c]) for c in SUBTASK_COLUMNS)
-        with tqdm(total=columns * trials, desc=f"{kind} controllers", unit="trial", disable=not progress) as bar:
-            rows[kind] = evaluate_kind(env, controllers, trials, first_seed, on_trial=bar.update)
+        with tqdm(total=columns * trials, desc=label, unit="trial", disable=not progress) as bar:
+            return evaluate_kind(env, controllers, trials, first_seed, on_trial=bar.update)
+    finally:
         env.close()
-    return rows
+
+
+def evaluate_table(kinds: list[str], sources, trials: int, first_seed: int = 0, resolution: int = 128,
+                   clearance_mm: float = 2.0, progress: bool = True) -> dict[str, dict[str, Cell]]:
+    """Rows of Table I for `kinds` (MP, DMP, CNN)."""
+    import torch
+
+    from policy_composer.policies.library import names_of_kind
+
+    torch.set_num_threads(1)
+    return {kind: evaluate_controllers(names_of_kind(kind), sources, trials, first_seed, resolution, clearance_mm,
+                                       progress, f"{kind} controllers") for kind in kinds}
 
 
 def table_row(kind: str, row: dict[str, Cell]) -> str:
