@@ -1,8 +1,10 @@
 """Selector decision latency for the whole library, and training speed of each learned model, at the default sizes.
 
 Run: python benchmarks/selector_speed.py [--decisions 20] [--frames 512]
-Latency: one decision over the 7 controllers of the library (all applicable: the worst case) at n = 10 and
-K = 16, against the reference of encoding one camera image with the VAE in the same process. Training: seconds
+Latency: one decision over the library's controllers (all applicable: the worst case) at n = 10 and K = 16,
+batched and one controller at a time, against the reference of encoding one camera image with the VAE in the
+same process; then what the futures' decoding and scoring alone takes, and the scaling with the number of
+applicable controllers and with a batch of states. Training: seconds
 per epoch over `--frames` random frames for each model at its default configuration, and the time of a full
 default training run at the datasets' sizes (frames given on the command line). Models are randomly
 initialised: speed does not depend on the weights.
@@ -51,17 +53,37 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
 
-    vae_config, dyn_config, goal_config = VAEConfig(), DynamicsConfig(), GoalScoreConfig()
+    vae_config, dyn_config, goal_config = VAEConfig(), DynamicsConfig(), GoalScoreConfig(camera=VAEConfig().camera)
     vae = VAE(vae_config).eval()
-    dynamics = {n: LatentDynamics(DynamicsConfig(controller=n)).eval() for n in all_names()}
+    names = all_names()
+    dynamics = {n: LatentDynamics(DynamicsConfig(controller=n)).eval() for n in names}
     world = GearWorldModel(vae, dynamics, GoalScoreModel(goal_config).eval())
-    selector = world.selector(horizon=10, samples=16, seed=0)
     obs = {"sensor_data": {world.camera: {"rgb": torch.randint(0, 255, (1, 128, 128, 3), dtype=torch.uint8)}}}
     encode = timed(lambda: world.encode(obs), args.decisions)
-    decide = timed(lambda: selector.decide(world.encode(obs)), args.decisions)
+    W, K = len(names), 16
     print(f"reference: encode one 128x128 image with the VAE: {encode * 1000:.1f} ms")
-    print(f"selector decision, {len(all_names())} controllers, n = 10, K = 16: {decide * 1000:.0f} ms "
-          f"({decide / encode:.0f}x the reference)")
+
+    def decision(batched: bool, applicable: int = W, states: int = 1) -> float:
+        selector = world.selector(horizon=10, samples=K, seed=0, batched=batched)
+        mask = torch.zeros(states, W, dtype=torch.bool)
+        mask[:, :applicable] = True
+        z = world.encode(obs).expand(states, -1)
+        return timed(lambda: selector.decide(z, mask), args.decisions)
+
+    batched, one_by_one = decision(True), decision(False)
+    print(f"selector decision, {W} controllers applicable, n = 10, K = {K}: {batched * 1000:.0f} ms batched "
+          f"({batched / encode:.0f}x the reference), {one_by_one * 1000:.0f} ms one controller at a time "
+          f"(batching: {one_by_one / batched:.1f}x faster); target 10 ms: {'met' if batched <= 0.010 else 'not met'}")
+    futures = torch.randn(W * K, vae_config.latent_dim)
+    with torch.no_grad():
+        folded, plain = (timed(lambda d=d: d(futures), args.decisions) for d in (world.decoder, vae.decode))
+    floor = timed(lambda: world.score(futures), args.decisions)
+    print(f"  of which decoding and scoring the {W * K} futures: {floor * 1000:.0f} ms (decoding: {folded * 1000:.0f} "
+          f"ms folded, {plain * 1000:.0f} ms with the VAE's own decode)")
+    print("  by applicable controllers: " + ", ".join(
+        f"{w}: {decision(True, w) * 1000:.0f} ms" for w in (1, 3, 5, W)))
+    print("  by a batch of states (all applicable): " + ", ".join(
+        f"{b}: {(t := decision(True, W, b)) * 1000:.0f} ms ({t / b * 1000:.0f} ms a state)" for b in (1, 2, 4)))
 
     size = vae_config.image_size
     images = torch.rand(max(vae_config.batch_size, goal_config.batch_size, 120), 3, size, size)

@@ -17,6 +17,8 @@ from policy_composer.data.frames import to_model_image
 from policy_composer.policies.subtasks import SUBTASKS, LearnedController, Subtask, check_camera
 from policy_composer.tasks.spec import ACTION_NAMES, STATE_NAMES
 
+POLICY_NAMES = {"act": "ACT", "diffusion": "Diffusion Policy", "pi0": "pi0", "smolvla": "SmolVLA", "vqbet": "VQ-BeT"}
+
 
 def lerobot_cameras(path: str | Path) -> tuple[str, ...]:
     """The cameras a LeRobot checkpoint reads, from its config (without loading the policy)."""
@@ -25,6 +27,15 @@ def lerobot_cameras(path: str | Path) -> tuple[str, ...]:
     config = Path(path) / "config.json"
     features = json.loads(config.read_text()).get("input_features", {}) if config.is_file() else {}
     return tuple(k.removeprefix("observation.images.") for k in features if k.startswith("observation.images."))
+
+
+def lerobot_label(path: str | Path) -> str:
+    """A checkpoint's row in Table I, by its policy type: "ACT (LeRobot)", "Diffusion Policy (LeRobot)"."""
+    import json
+
+    config = Path(path) / "config.json"
+    kind = json.loads(config.read_text()).get("type", "policy") if config.is_file() else "policy"
+    return f"{POLICY_NAMES.get(kind, kind)} (LeRobot)"
 
 
 class LeRobotPolicyController(LearnedController):

@@ -31,7 +31,7 @@ from policy_composer.policies.registry import LibraryError, get_kind, kind_of, k
 LIBRARY_REVISION = 9
 
 __all__ = ["LIBRARY_REVISION", "LeRobotSource", "LibraryError", "LibrarySources", "all_names", "build_library",
-           "cameras_needed", "model_ids", "names_of_kind"]
+           "cameras_needed", "model_ids", "names_of_kind", "subtask_of"]
 
 
 @dataclass(frozen=True)
@@ -81,6 +81,15 @@ class _Models:
         if kind.name not in self.loaded:
             self.loaded[kind.name] = kind.function("load")(self.sources.model_path(kind.name))
         return self.loaded[kind.name]
+
+
+def subtask_of(name: str, sources: LibrarySources) -> str:
+    """The subtask of a controller of the library, from its name (a kind's: KIND_SUBTASK) or its LeRobot source."""
+    lerobot = {s.controller_name: s.subtask for s in sources.lerobot}
+    kind = kind_of(name)
+    if name not in lerobot and kind is None:
+        raise LibraryError(f"no controller {name!r} in the library (it has {', '.join(all_names(sources))})")
+    return lerobot.get(name) or name.removeprefix(f"{kind.name}_")
 
 
 def cameras_needed(names, sources: LibrarySources) -> tuple[str, ...]:

@@ -13,10 +13,11 @@ from policy_composer.data import atomic
 from policy_composer.demo import PROFILES
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 from policy_composer.policies.configuration_dmp import FIT_EPISODES, FIT_FIRST_SEED
-from policy_composer.policies.library import LeRobotSource, LibrarySources
+from policy_composer.policies.library import LeRobotSource, LibrarySources, names_of_kind
 from policy_composer.policies.registry import LibraryError, kinds
 from policy_composer.selector.configuration import ComposeConfig, DynamicsConfig, GoalScoreConfig, VAEConfig
 from policy_composer.tasks.spec import CAMERA_NAMES, CLEARANCE_MM, RESOLUTION, EnvSettings
+from policy_composer.workers import usable_cores
 
 DEFAULT_GRASP_OFFSET_MM = LibrarySources.max_grasp_offset * 1000  # the expert's and the pick-up's
 MODELS = Path("results/models")
@@ -70,7 +71,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from policy_composer.demo import run_demo
 
     try:
-        _, report = run_demo(args.profile, args.out)
+        _, report = run_demo(args.profile, args.out, args.workers or usable_cores())
     except KeyboardInterrupt:
         print(f"\ninterrupted: finished stages (and the episodes of an unfinished recording or composed run) are kept "
               f"in {Path(args.out) / 'pipeline'}; run the same command again to resume", file=sys.stderr)
@@ -251,11 +252,15 @@ def cmd_train_dmp(args: argparse.Namespace) -> int:
 
 
 def cmd_evaluate_controllers(args: argparse.Namespace) -> int:
-    """Paper Table I, rows MP, DMP and CNN."""
-    from policy_composer.controller_table import evaluate_table, write_table
+    """Paper Table I, rows MP, DMP and CNN, and a row for each --lerobot checkpoint."""
+    from policy_composer.controller_table import evaluate_rows, write_table
+    from policy_composer.policies.lerobot_policy import lerobot_label
 
     sources = _sources(args)
-    rows = evaluate_table(args.kinds.split(","), sources, args.trials, args.seed, args.resolution, args.clearance)
+    rows = {kind: names_of_kind(kind) for kind in args.kinds.split(",") if kind}
+    rows.update({lerobot_label(s.path): (s.controller_name,) for s in sources.lerobot})
+    rows = evaluate_rows(rows, sources, args.trials, args.seed, args.resolution, args.clearance,
+                         workers=args.workers or usable_cores())
     for kind, row in rows.items():
         print(f"{kind}: " + ", ".join(f"{c} {cell}" for c, cell in row.items()))
     print(f"table: {write_table(rows, Path(args.out))}")
@@ -308,7 +313,8 @@ def cmd_compose(args: argparse.Namespace) -> int:
     episodes = compose_library(args.models, _sources(args), config_from(args, ComposeConfig),
                                list(range(args.seed, args.seed + args.episodes)),
                                Path(args.out), videos=args.videos, resolution=args.resolution,
-                               clearance_mm=args.clearance, knock_out_step=args.knock_out_step, resume=args.resume)
+                               clearance_mm=args.clearance, knock_out_step=args.knock_out_step, resume=args.resume,
+                               workers=args.workers or usable_cores())
     ok = sum(e.success for e in episodes)
     print(f"composed: {ok}/{len(episodes)} full-task successes -> {Path(args.out) / 'summary.md'}")
     return 0
@@ -351,6 +357,11 @@ def build_parser() -> argparse.ArgumentParser:
                            help="max grasp offset of the gear in the gripper, mm")
         p.add_argument("--seed", type=at_least(0), default=0, help="first seed")
 
+    def workers_option(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--workers", type=at_least(1), default=None,
+                       help="processes running episodes side by side, each with its own env (default: the usable "
+                            "cores); the results are the same for any number")
+
     def model_options(p: argparse.ArgumentParser) -> None:
         """--KIND for every registered kind that loads a trained model, and --lerobot checkpoints."""
         for kind in kinds().values():
@@ -365,6 +376,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--profile", default="quick", choices=tuple(PROFILES),
                       help="quick: 30 min on 2 CPU cores; paper: the paper's sizes; smoke: every stage, tiny (tests)")
     demo.add_argument("--out", default="results", help="report.md, report.html and the stages' outputs (pipeline/)")
+    workers_option(demo)
     demo.set_defaults(func=cmd_demo)
     expert = sub.add_parser("expert", help="the scripted expert on a few seeds, with videos of the three cameras")
     env_options(expert)
@@ -384,9 +396,11 @@ def build_parser() -> argparse.ArgumentParser:
     env_options(ev_ctrl)
     labels = ",".join(k.label for k in kinds().values())
     ev_ctrl.add_argument("--trials", type=at_least(1), default=10)
-    ev_ctrl.add_argument("--kinds", default=labels, help=f"comma-separated kinds (default: {labels})")
+    ev_ctrl.add_argument("--kinds", default=labels, help=f"comma-separated kinds (default: {labels}; '' for none: "
+                                                          f"only the --lerobot checkpoints' rows)")
     model_options(ev_ctrl)
     ev_ctrl.add_argument("--out", default="results/controllers")
+    workers_option(ev_ctrl)
     ev_ctrl.set_defaults(func=cmd_evaluate_controllers)
 
     train = sub.add_parser("train", help="train the library's learned controllers")
@@ -452,6 +466,7 @@ def build_parser() -> argparse.ArgumentParser:
     compose.add_argument("--resume", action="store_true",
                          help="keep the episodes already in --out; run the other seeds")
     compose.add_argument("--out", default="results/compose")
+    workers_option(compose)
     compose.set_defaults(func=cmd_compose)
 
     library = sub.add_parser("library", help="grow the library of controllers")

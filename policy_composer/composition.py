@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from collections import Counter
 from dataclasses import asdict
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -15,7 +16,6 @@ from policy_composer.stats import rate
 
 if TYPE_CHECKING:  # the simulator and torch load when a run starts, not when the command line starts
     from policy_composer.selector.compose import ComposedEpisode
-    from policy_composer.selector.world_model import GearWorldModel
 
 PAPER_COMPOSED = "10/10"  # paper Table I: MP + CNN composed by the selector, full task
 MILESTONES = ("picked", "at the pre-insertion pose", "seated")  # the full task's subtasks done, in order
@@ -52,68 +52,83 @@ class VideoWriter:
         return path
 
 
+class Composer:
+    """Composed episodes in one process: the world model, the env with the cameras they all need and the library,
+    built once. Called with a seed, runs its episode (and writes its video if it is one of `video_seeds`)."""
+
+    def __init__(self, models: str | Path, sources, config: ComposeConfig, resolution: int = 128,
+                 clearance_mm: float = 2.0, knock_out_step: int | None = None, out: Path | None = None,
+                 video_seeds: tuple[int, ...] = ()):
+        from policy_composer.policies.library import build_library, cameras_needed
+        from policy_composer.selector.world_model import GearWorldModel
+        from policy_composer.tasks.rollout import make_env
+
+        self.world = GearWorldModel.load(models)
+        names = list(self.world.dynamics)
+        cameras = tuple(dict.fromkeys((self.world.camera, *cameras_needed(names, sources))))
+        self.env = make_env("rgb", resolution, clearance_mm, cameras, knock_out_step=knock_out_step)
+        self.library = build_library(self.env, names, sources)
+        self.config, self.out, self.video_seeds = config, out, video_seeds
+
+    def __call__(self, seed: int) -> ComposedEpisode:
+        from policy_composer.selector.compose import compose_episode
+
+        video = VideoWriter(self.world.camera) if seed in self.video_seeds else None
+        result = compose_episode(self.env, self.library, self.world, self.config, seed, on_frame=video)
+        if video is not None:
+            video.save(self.out / f"composed_seed{seed}.mp4", int(self.env.unwrapped.control_freq))
+        return result
+
+    def close(self) -> None:
+        self.env.close()
+
+
 def compose_library(models: str | Path, sources, config: ComposeConfig, seeds: list[int], out: Path, videos: int = 1,
                     resolution: int = 128, clearance_mm: float = 2.0, knock_out_step: int | None = None,
-                    resume: bool = False, progress: bool = True) -> list[ComposedEpisode]:
+                    resume: bool = False, progress: bool = True, workers: int = 1) -> list[ComposedEpisode]:
     """Load the world model in `models`, build every controller it has a dynamics model of from `sources`
-    (a `LibrarySources`), and compose on each seed in an env with the cameras they all need."""
+    (a `LibrarySources`), and compose on each seed (spread over `workers` processes); writes episodes.jsonl
+    (decision logs), summary.md and the videos of the first `videos` seeds. With `resume`, the episodes already
+    in episodes.jsonl are kept and their seeds not run again."""
     import torch
+    from tqdm import tqdm
 
-    from policy_composer.policies.library import build_library, cameras_needed, model_ids
+    from policy_composer.policies.library import model_ids
     from policy_composer.selector.world_model import GearWorldModel
-    from policy_composer.tasks.rollout import make_env
+    from policy_composer.workers import run_episodes
 
-    check_out(Path(out), resume)  # first: a finished run in `out` is refused before anything loads
+    out = Path(out)
+    check_out(out, resume)  # first: a finished run in `out` is refused before anything loads
     torch.set_num_threads(1)
     world = GearWorldModel.load(models)
-    names = list(world.dynamics)
-    ids = model_ids(names, sources)
+    ids = model_ids(list(world.dynamics), sources)
     world.check_controllers(ids)
     settings = {"models": str(Path(models).resolve()), "controller_models": ids, "config": asdict(config),
                 "resolution": resolution, "clearance_mm": clearance_mm, "knock_out_step": knock_out_step}
-    check_out(Path(out), resume, settings)  # and a resumed one continues with its own settings
-    cameras = tuple(dict.fromkeys((world.camera, *cameras_needed(names, sources))))
-    env = make_env("rgb", resolution, clearance_mm, cameras, knock_out_step=knock_out_step)
-    try:
-        return run_composition(env, build_library(env, names, sources), world, config, seeds, out, videos, resume,
-                               progress, settings)
-    finally:
-        env.close()
-
-
-def run_composition(env, library: dict, world: GearWorldModel, config: ComposeConfig, seeds: list[int], out: Path,
-                    videos: int = 1, resume: bool = False, progress: bool = True,
-                    settings: dict | None = None) -> list[ComposedEpisode]:
-    """Compose on each seed; write episodes.jsonl (decision logs), summary.md and the first `videos` videos.
-    With `resume`, the episodes already in episodes.jsonl are kept and their seeds not run again. `settings`
-    (kept in run.json) are what a resumed run must share."""
-    from tqdm import tqdm
-
-    from policy_composer.selector.compose import compose_episode
-
-    check_out(out, resume, settings)
+    check_out(out, resume, settings)  # and a resumed one continues with its own settings
     out.mkdir(parents=True, exist_ok=True)
-    if settings is not None and not (out / "run.json").is_file():
+    if not (out / "run.json").is_file():
         atomic.write_text(out / "run.json", json.dumps(settings, indent=1))
     path = out / "episodes.jsonl"
-    kept = load_episodes(out) if resume else []
+    kept = {e.seed: e for e in load_episodes(out)} if resume else {}
     if kept:  # rewritten whole, without an episode cut off mid-line
-        atomic.write_text(path, "".join(json.dumps(e.to_dict()) + "\n" for e in kept))
-    done = {e.seed: e for e in kept}
-    episodes = [done[s] for s in seeds if s in done]
-    with open(path, "a" if resume else "w") as log:
-        for i, seed in enumerate(tqdm(seeds, desc="composed episodes", unit="episode", disable=not progress)):
-            if seed in done:
-                continue
-            video = VideoWriter(world.camera) if i < videos else None
-            result = compose_episode(env, library, world, config, seed, on_frame=video)
-            episodes.append(result)
-            log.write(json.dumps(result.to_dict()) + "\n")
+        atomic.write_text(path, "".join(json.dumps(e.to_dict()) + "\n" for e in kept.values()))
+    todo = [s for s in seeds if s not in kept]
+    setup = partial(Composer, models, sources, config, resolution, clearance_mm, knock_out_step, out,
+                    tuple(seeds[:videos]))
+    with open(path, "a" if resume else "w") as log, \
+            tqdm(total=len(todo), desc="composed episodes", unit="episode", disable=not progress) as bar:
+        def save(_seed: int, episode: ComposedEpisode) -> None:
+            log.write(json.dumps(episode.to_dict()) + "\n")
             log.flush()  # an interrupted run keeps every finished episode
-            if video is not None:
-                video.save(out / f"composed_seed{seed}.mp4", int(env.unwrapped.control_freq))
+            bar.update()
             interrupt.check()
-    episodes.sort(key=lambda e: seeds.index(e.seed))
+
+        ran = dict(zip(todo, run_episodes(setup, todo, workers, save)))
+    episodes = [kept[s] if s in kept else ran[s] for s in seeds]
+    others = [e for s, e in kept.items() if s not in seeds]  # seeds of the earlier run that this one did not ask for
+    # In seed order, as a serial run writes it (workers finish in any order).
+    atomic.write_text(path, "".join(json.dumps(e.to_dict()) + "\n" for e in [*episodes, *others]))
     atomic.write_text(out / "summary.md", summary(episodes, config))
     return episodes
 

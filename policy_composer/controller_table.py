@@ -11,8 +11,8 @@ paper's table) starts where the insertion does.
 from __future__ import annotations
 
 import csv
-from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 from policy_composer.data import atomic
@@ -79,73 +79,109 @@ def _expert_until(env, seed: int, subtask: str, max_steps: int):
     return None
 
 
-def evaluate_kind(env, controllers: dict[str, object], trials: int, first_seed: int = 0,
-                  on_trial: Callable[[], None] | None = None) -> dict[str, Cell]:
-    """One row: `controllers` maps subtask -> controller (missing subtasks are not run)."""
+@dataclass(frozen=True)
+class Trial:
+    ok: bool
+    completed: int  # subtasks done, in order (the last one counts only if it seated the gear)
+    safety_stop: bool
+    failure: str = ""
+
+
+def run_trial(env, controllers: dict[str, object], column: str, seed: int) -> Trial:
+    """One trial of a Table I cell: `controllers` (subtask -> controller) run `column`'s sequence from its start."""
     from policy_composer.policies.base import InitiationError
 
-    row = {c: Cell() for c in SUBTASK_COLUMNS}
-    for column in SUBTASK_COLUMNS:
-        sequence = SEQUENCES[column]
-        if not all(s in controllers for s in sequence):
-            continue
-        cell = row[column]
-        for seed in range(first_seed, first_seed + trials):
-            obs = start_state(env, seed, column)
-            outcome, why, done = Outcome.DONE, "", 0
-            for s in sequence:
-                c = controllers[s]
-                try:
-                    obs = run_activation(env, c, obs, seed)
-                except InitiationError as e:
-                    outcome, why = Outcome.FAILED, str(e)
-                    break
-                outcome, why = c.outcome, c.reason
-                if outcome is not Outcome.DONE:
-                    break
-                done += 1
-            ok = outcome is Outcome.DONE and (column != "full" or bool(env.unwrapped.evaluate()["success"][0]))
-            cell.completed.append(done if ok or done < len(sequence) else done - 1)  # the last one must seat it
-            cell.trials += 1
-            cell.successes += ok
-            cell.safety_stops += outcome is Outcome.SAFETY_STOP
-            if not ok:
-                cell.failures.append(f"seed {seed}: {why or outcome.value}")
-            if on_trial:
-                on_trial()
-    return row
+    sequence = SEQUENCES[column]
+    obs = start_state(env, seed, column)
+    outcome, why, done = Outcome.DONE, "", 0
+    for s in sequence:
+        c = controllers[s]
+        try:
+            obs = run_activation(env, c, obs, seed)
+        except InitiationError as e:
+            outcome, why = Outcome.FAILED, str(e)
+            break
+        outcome, why = c.outcome, c.reason
+        if outcome is not Outcome.DONE:
+            break
+        done += 1
+    ok = outcome is Outcome.DONE and (column != "full" or bool(env.unwrapped.evaluate()["success"][0]))
+    return Trial(ok, done if ok or done < len(sequence) else done - 1, outcome is Outcome.SAFETY_STOP,
+                 "" if ok else f"seed {seed}: {why or outcome.value}")
+
+
+class TrialRunner:
+    """Table I trials in one process: each row's env (with the cameras its controllers read) and controllers, built
+    when its first trial comes. Called with (row, column, seed)."""
+
+    def __init__(self, rows: dict[str, tuple[str, ...]], sources, resolution: int = 128, clearance_mm: float = 2.0):
+        self.rows, self.sources, self.resolution, self.clearance_mm = rows, sources, resolution, clearance_mm
+        self.built: dict[str, tuple] = {}
+
+    def __call__(self, item: tuple[str, str, int]) -> Trial:
+        from policy_composer.policies.library import build_library, cameras_needed
+        from policy_composer.tasks.rollout import make_env
+
+        row, column, seed = item
+        if row not in self.built:
+            cameras = cameras_needed(self.rows[row], self.sources)
+            env = make_env("rgb" if cameras else "state_dict", self.resolution, self.clearance_mm, cameras or None)
+            library = build_library(env, self.rows[row], self.sources)
+            self.built[row] = env, {c.subtask.name: c for c in library.values()}
+        return run_trial(*self.built[row], column, seed)
+
+    def close(self) -> None:
+        for env, _ in self.built.values():
+            env.close()
+
+
+def evaluate_rows(rows: dict[str, tuple[str, ...]], sources, trials: int, first_seed: int = 0,
+                  resolution: int = 128, clearance_mm: float = 2.0, progress: bool = True,
+                  workers: int = 1) -> dict[str, dict[str, Cell]]:
+    """Rows of Table I: each row's named controllers (one per subtask) on every column they cover, `trials` seeds
+    from `first_seed` each, the trials spread over `workers` processes."""
+    import torch
+    from tqdm import tqdm
+
+    from policy_composer.policies.library import subtask_of
+    from policy_composer.workers import run_episodes
+
+    torch.set_num_threads(1)
+    items = []
+    for row, names in rows.items():
+        subtasks = {subtask_of(n, sources) for n in names}
+        items += [(row, column, seed) for column in SUBTASK_COLUMNS if set(SEQUENCES[column]) <= subtasks
+                  for seed in range(first_seed, first_seed + trials)]
+    setup = partial(TrialRunner, rows, sources, resolution, clearance_mm)
+    with tqdm(total=len(items), desc=" and ".join(rows), unit="trial", disable=not progress) as bar:
+        results = run_episodes(setup, items, workers, lambda *_: bar.update())
+    table = {row: {c: Cell() for c in SUBTASK_COLUMNS} for row in rows}
+    for (row, column, _), trial in zip(items, results):
+        cell = table[row][column]
+        cell.trials += 1
+        cell.successes += trial.ok
+        cell.safety_stops += trial.safety_stop
+        cell.completed.append(trial.completed)
+        if trial.failure:
+            cell.failures.append(trial.failure)
+    return table
 
 
 def evaluate_controllers(names, sources, trials: int, first_seed: int = 0, resolution: int = 128,
-                         clearance_mm: float = 2.0, progress: bool = True,
-                         label: str = "controllers") -> dict[str, Cell]:
-    """One row of Table I: the named controllers (one per subtask) in an env with the cameras they need."""
-    from tqdm import tqdm
-
-    from policy_composer.policies.library import build_library, cameras_needed
-    from policy_composer.tasks.rollout import make_env
-
-    cameras = cameras_needed(names, sources)
-    env = make_env("rgb" if cameras else "state_dict", resolution, clearance_mm, cameras or None)
-    try:
-        controllers = {c.subtask.name: c for c in build_library(env, names, sources).values()}
-        columns = sum(all(s in controllers for s in SEQUENCES[c]) for c in SUBTASK_COLUMNS)
-        with tqdm(total=columns * trials, desc=label, unit="trial", disable=not progress) as bar:
-            return evaluate_kind(env, controllers, trials, first_seed, on_trial=bar.update)
-    finally:
-        env.close()
+                         clearance_mm: float = 2.0, progress: bool = True, label: str = "controllers",
+                         workers: int = 1) -> dict[str, Cell]:
+    """One row of Table I: the named controllers (one per subtask)."""
+    return evaluate_rows({label: tuple(names)}, sources, trials, first_seed, resolution, clearance_mm, progress,
+                         workers)[label]
 
 
 def evaluate_table(kinds: list[str], sources, trials: int, first_seed: int = 0, resolution: int = 128,
-                   clearance_mm: float = 2.0, progress: bool = True) -> dict[str, dict[str, Cell]]:
+                   clearance_mm: float = 2.0, progress: bool = True, workers: int = 1) -> dict[str, dict[str, Cell]]:
     """Rows of Table I for `kinds` (MP, DMP, CNN)."""
-    import torch
-
     from policy_composer.policies.library import names_of_kind
 
-    torch.set_num_threads(1)
-    return {kind: evaluate_controllers(names_of_kind(kind), sources, trials, first_seed, resolution, clearance_mm,
-                                       progress, f"{kind} controllers") for kind in kinds}
+    return evaluate_rows({kind: names_of_kind(kind) for kind in kinds}, sources, trials, first_seed, resolution,
+                         clearance_mm, progress, workers)
 
 
 def table_row(kind: str, row: dict[str, Cell]) -> str:

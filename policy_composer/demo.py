@@ -77,8 +77,9 @@ PROFILES = {
 }
 
 
-def stages(p: Profile) -> list[Stage]:
-    """The main job's stages at the sizes of profile `p`."""
+def stages(p: Profile, workers: int = 1) -> list[Stage]:
+    """The main job's stages at the sizes of profile `p`; the episode loops run on `workers` processes (not in a
+    stage's key: the results are the same for any number)."""
     from policy_composer.data.recipes import load_recipe
     from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
     from policy_composer.policies.library import LIBRARY_REVISION, all_names
@@ -133,15 +134,17 @@ def stages(p: Profile) -> list[Stage]:
               lambda out, i: _evaluate_goal(out, i), inputs=("world-model", "full-task-demos")),
         Stage("table", f"Table I: each controller kind on each subtask ({p.table_trials} per cell)",
               {"trials": p.table_trials, "kinds": table_kinds, **env, **library},
-              lambda out, i: _table(out, i, p, table_kinds), inputs=("dmp", "cnn")),
+              lambda out, i: _table(out, i, p, table_kinds, workers), inputs=("dmp", "cnn")),
         Stage("compose", f"compose the library with the selector (episodes: {p.compose_episodes})",
               {"compose": asdict(compose), "episodes": p.compose_episodes, **env, **library},
-              lambda out, i: _compose(out, i, compose, list(range(p.compose_episodes)), p.resolution, None),
+              lambda out, i: _compose(out, i, compose, list(range(p.compose_episodes)), p.resolution, None,
+                                       workers),
               inputs=("dmp", "cnn", "world-model"), resumable=True),
         Stage("knock-out", f"recovery from the gear knocked out of the gripper (episodes: {p.knockout_episodes})",
               {"compose": asdict(compose), "episodes": p.knockout_episodes, "knock_out_step": 100, **env,
                **library},
-              lambda out, i: _compose(out, i, compose, list(range(100, 100 + p.knockout_episodes)), p.resolution, 100),
+              lambda out, i: _compose(out, i, compose, list(range(100, 100 + p.knockout_episodes)), p.resolution,
+                                       100, workers),
               inputs=("dmp", "cnn", "world-model"), resumable=True),
         Stage("mdp", "the random-walk MDP experiments (19 and 100 states)",
               {"episodes_19": p.mdp_episodes_19, "episodes_100": p.mdp_episodes_100, "levels": p.mdp_levels},
@@ -149,7 +152,8 @@ def stages(p: Profile) -> list[Stage]:
     ]
 
 
-def run_demo(profile: str = "quick", out: str | Path = "results") -> tuple[dict[str, StageRecord], Path]:
+def run_demo(profile: str = "quick", out: str | Path = "results",
+             workers: int = 1) -> tuple[dict[str, StageRecord], Path]:
     """Run (or reuse) every stage under `out`/pipeline, then write `out`/report.md and report.html."""
     from policy_composer.report import write_report
 
@@ -158,7 +162,7 @@ def run_demo(profile: str = "quick", out: str | Path = "results") -> tuple[dict[
     p = PROFILES[profile]
     out = Path(out)
     t0 = time.perf_counter()
-    records = run_stages(stages(p), out / "pipeline")
+    records = run_stages(stages(p, workers), out / "pipeline")
     report = write_report(out, p, records, time.perf_counter() - t0)
     return records, report
 
@@ -233,23 +237,26 @@ def _evaluate_goal(out: Path, inputs: dict[str, Path]) -> dict:
     return {"metrics": metrics}
 
 
-def _table(out: Path, inputs: dict[str, Path], p: Profile, kinds: tuple[str, ...]) -> dict:
+def _table(out: Path, inputs: dict[str, Path], p: Profile, kinds: tuple[str, ...], workers: int) -> dict:
     from policy_composer.controller_table import evaluate_table, write_table
 
-    rows = evaluate_table(list(kinds), _sources(inputs), p.table_trials, 0, p.resolution)
+    rows = evaluate_table(list(kinds), _sources(inputs), p.table_trials, 0, p.resolution, workers=workers)
     write_table(rows, out)
-    return {"rows": {kind: {c: [cell.successes, cell.trials, cell.safety_stops] for c, cell in row.items()}
+    return {"workers": workers,
+            "rows": {kind: {c: [cell.successes, cell.trials, cell.safety_stops] for c, cell in row.items()}
                      for kind, row in rows.items()},
             "completed": {kind: row["full"].completed for kind, row in rows.items() if row["full"].trials}}
 
 
 def _compose(out: Path, inputs: dict[str, Path], config, seeds: list[int], resolution: int,
-             knock_out_step: int | None) -> dict:
+             knock_out_step: int | None, workers: int) -> dict:
     from policy_composer.composition import compose_library
 
     episodes = compose_library(inputs["world-model"] / "world", _sources(inputs), config, seeds, out, videos=1,
-                               resolution=resolution, knock_out_step=knock_out_step, resume=True)
-    return {"successes": [e.success for e in episodes], "knocked_out": [e.knocked_out for e in episodes]}
+                               resolution=resolution, knock_out_step=knock_out_step, resume=True,
+                               workers=workers)
+    return {"successes": [e.success for e in episodes], "knocked_out": [e.knocked_out for e in episodes],
+            "workers": workers}
 
 
 def _mdp(out: Path, p: Profile) -> dict:

@@ -186,10 +186,25 @@ def _mdp(record: StageRecord, figures: list[str | None]) -> str:
     return "\n".join(lines)
 
 
+def _throughput(r: StageRecord) -> str:
+    """What an episode loop got through per second, from its stage's facts ("" for the other stages)."""
+    f, seconds = r.facts, max(r.seconds, 1e-9)
+    if "frames" in f:
+        done = f"{f['episodes'] / seconds:.2f} episodes/s, {f['frames'] / seconds:.1f} frames/s"
+    elif "successes" in f:
+        done = f"{len(f['successes']) / seconds:.3f} episodes/s"
+    elif "rows" in f:
+        done = f"{sum(cell[1] for row in f['rows'].values() for cell in row.values()) / seconds:.2f} trials/s"
+    else:
+        return ""
+    return done + (f" ({f['workers']} workers)" if f.get("workers", 1) > 1 else "")
+
+
 def _timings(records: dict[str, StageRecord], wall_seconds: float) -> str:
-    lines = ["## Timings", "", "| stage | seconds | this run |", "|---|---|---|"]
-    lines += [f"| {r.title} | {r.seconds:.0f} | {'reused' if r.reused else 'ran'} |" for r in records.values()]
-    lines += [f"| **main job, this run** | {wall_seconds:.0f} | |"]
+    lines = ["## Timings", "", "| stage | seconds | throughput | this run |", "|---|---|---|---|"]
+    lines += [f"| {r.title} | {r.seconds:.0f} | {_throughput(r)} | {'reused' if r.reused else 'ran'} |"
+              for r in records.values()]
+    lines += [f"| **main job, this run** | {wall_seconds:.0f} | | |"]
     models = {what: s for r in records.values() for what, s in r.facts.get("timings", {}).items()}
     if models:
         lines += ["", "| model | training seconds |", "|---|---|"] + [f"| {m} | {s:.0f} |" for m, s in models.items()]

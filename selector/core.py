@@ -75,11 +75,20 @@ class Selector:
         `applicable[b, w]` is 1_{I_w}(s_b), evaluated by the caller on the real observation (a controller's
         initiation set lives in its own state space, not in the selector's).
         """
-        B, W, K = states.shape[0], len(self.names), self.samples
+        B, W = states.shape[0], len(self.names)
         if applicable is None:
             applicable = torch.ones(B, W, dtype=torch.bool)
         if applicable.shape != (B, W):
             raise ValueError(f"applicable must be (batch, controllers) = ({B}, {W}), got {tuple(applicable.shape)}")
+        scores, predicted = self.evaluate(states, applicable)
+        choice = scores.argmax(dim=1)  # ties go to the first controller in library order
+        choice[~applicable.any(dim=1)] = -1
+        return Decision(self.names, choice, scores, predicted)
+
+    def evaluate(self, states: torch.Tensor, applicable: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """E[G(D_w^n(s))] for every applicable (state, controller), -inf elsewhere, (B, W); and the sampled futures
+        (B, W, K, *S) if kept. One controller at a time: any model of the protocols runs here."""
+        B, W, K = states.shape[0], len(self.names), self.samples
         scores = torch.full((B, W), float("-inf"))
         predicted = torch.zeros(B, W, K, *states.shape[1:], dtype=states.dtype) if self.keep_predictions else None
         for w, name in enumerate(self.names):
@@ -91,6 +100,4 @@ class Selector:
             scores[rows, w] = g.mean(dim=1).float()
             if predicted is not None:
                 predicted[rows, w] = future
-        choice = scores.argmax(dim=1)  # ties go to the first controller in library order
-        choice[~applicable.any(dim=1)] = -1
-        return Decision(self.names, choice, scores, predicted)
+        return scores, predicted

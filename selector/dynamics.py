@@ -8,6 +8,7 @@ latents where the decoder (and so the goal score) understands them.
 
 from __future__ import annotations
 
+import copy
 import time
 from pathlib import Path
 
@@ -58,10 +59,52 @@ class LatentDynamics(nn.Module):
         return nll + self.config.decoder_weight * recon
 
     @torch.no_grad()
-    def step(self, states: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
-        """One sampled dynamics step, (M, L) -> (M, L): the selector's D_w."""
-        delta = self.head.sample(*self(states), generator=generator)
+    def step(self, states: torch.Tensor, generator: torch.Generator | None = None,
+             draws: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
+        """One sampled dynamics step, (M, L) -> (M, L): the selector's D_w (`draws`: see MixtureDensityHead.sample)."""
+        delta = self.head.sample(*self(states), generator=generator, draws=draws)
         return states + delta * self.delta_std + self.delta_mean
+
+
+class StackedDynamics(nn.Module):
+    """The dynamics models of several controllers as one module: a step of all of them is a few batched matrix
+    products instead of a Python loop over controllers and layers. Same arithmetic as each `LatentDynamics.step`."""
+
+    def __init__(self, models: list[LatentDynamics]):
+        super().__init__()
+        if not self.stackable(models):
+            raise ValueError("stacked dynamics models must share one shape (latent, hidden, mixtures)")
+        self.L, self.K = models[0].config.latent_dim, models[0].config.num_mixtures
+        layers = [m.trunk[0] for m in models], [m.trunk[2] for m in models], \
+            [m.head.logits for m in models], [m.head.means for m in models], [m.head.log_stds for m in models]
+        for name, stack in zip(("fc1", "fc2", "logits", "means", "log_stds"), layers):
+            self.register_buffer(f"{name}_w", torch.stack([lin.weight.T for lin in stack]))  # (W, in, out)
+            self.register_buffer(f"{name}_b", torch.stack([lin.bias[None] for lin in stack]))  # (W, 1, out)
+        for name in ("z_mean", "z_std", "delta_mean", "delta_std"):
+            self.register_buffer(name, torch.stack([getattr(m, name)[None] for m in models]))  # (W, 1, L)
+        self.min_log_std = models[0].head.min_log_std
+
+    def select(self, index: torch.Tensor) -> StackedDynamics:
+        """The stack of models `index` only (a copy of their parameters): a decision steps only what may start."""
+        sub = copy.copy(self)
+        sub._buffers = {name: buffer[index] for name, buffer in self._buffers.items()}
+        return sub
+
+    @staticmethod
+    def stackable(models: list[LatentDynamics]) -> bool:
+        return len({(m.config.latent_dim, m.config.hidden_dim, m.config.num_mixtures) for m in models}) == 1
+
+    @torch.no_grad()
+    def step(self, z: torch.Tensor, draws: tuple[torch.Tensor, torch.Tensor]) -> torch.Tensor:
+        """(W, M, L) latents, model w stepping row w -> (W, M, L); draws (W, M) and (W, M, L)."""
+        W, M, _ = z.shape
+        h = torch.relu(torch.baddbmm(self.fc1_b, (z - self.z_mean) / self.z_std, self.fc1_w))
+        h = torch.relu(torch.baddbmm(self.fc2_b, h, self.fc2_w))
+        log_pi = torch.log_softmax(torch.baddbmm(self.logits_b, h, self.logits_w), dim=-1)
+        mu = torch.baddbmm(self.means_b, h, self.means_w).view(W, M, self.K, self.L)
+        log_std = torch.baddbmm(self.log_stds_b, h, self.log_stds_w).view(W, M, self.K, self.L)
+        delta = MixtureDensityHead.sample(log_pi, mu, log_std.clamp(self.min_log_std, 3.0), draws=draws)
+        return z + delta * self.delta_std + self.delta_mean
 
 
 def transition_pairs(episode_index: torch.Tensor, frame_skip: int) -> tuple[torch.Tensor, torch.Tensor]:

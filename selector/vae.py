@@ -6,6 +6,7 @@ image: a user can look at what the model expects a controller to do.
 
 from __future__ import annotations
 
+import copy
 import time
 from pathlib import Path
 
@@ -18,6 +19,11 @@ from policy_composer.learning.training import fit_epochs
 from policy_composer.selector.configuration import VAEConfig
 
 TRAIN_HINT = "policy-composer train world-model"
+
+
+class ChannelsLast(nn.Module):
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x.contiguous(memory_format=torch.channels_last)
 
 
 class VAE(nn.Module):
@@ -46,6 +52,19 @@ class VAE(nn.Module):
 
     def decode(self, z: torch.Tensor) -> torch.Tensor:
         return self.decoder(self.from_latent(z))
+
+    @torch.no_grad()
+    def inference_decoder(self) -> nn.Module:
+        """`decode` for many latents at once (the selector's futures), same function: the latent layer and the first
+        transposed convolution are both linear, so they fold into one matrix (a third of the work), and the rest
+        runs channels-last, the layout the CPU's convolution kernels want. A snapshot: build it after training."""
+        first, s = self.decoder[1], self.config.image_size // 16
+        linear_part = first(self.from_latent.weight.T.reshape(-1, 256, s, s)) - first.bias[:, None, None]
+        folded = nn.Linear(self.config.latent_dim, linear_part[0].numel())
+        folded.weight.copy_(linear_part.flatten(1).T)
+        folded.bias.copy_(first(self.from_latent.bias.reshape(1, 256, s, s)).flatten())
+        rest = copy.deepcopy(self.decoder[2:]).to(memory_format=torch.channels_last)
+        return nn.Sequential(folded, nn.Unflatten(1, linear_part.shape[1:]), ChannelsLast(), *rest).eval()
 
     def loss(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Negative ELBO per image: summed squared reconstruction error + beta * KL; also returns the error."""

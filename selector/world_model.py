@@ -14,7 +14,7 @@ import torch
 
 from policy_composer.data.frames import to_model_image
 from policy_composer.learning.checkpoint import CheckpointError, trained_with, weights_id
-from policy_composer.selector.core import Selector
+from policy_composer.selector.batched import LatentSelector
 from policy_composer.selector.dynamics import LatentDynamics, load_dynamics
 from policy_composer.selector.goal_score import GoalScoreModel, load_goal_score
 from policy_composer.selector.vae import VAE, load_vae
@@ -44,6 +44,7 @@ class GearWorldModel:
             raise CheckpointError(f"the dynamics models step different numbers of control steps ({sorted(skips)}); "
                                   f"the selector compares them over one horizon, so train them with one frame_skip")
         self.vae, self.dynamics, self.goal = vae, dynamics, goal
+        self.decoder = vae.inference_decoder()
         self.camera = camera
         self.controller_models = controller_models or {}  # the model each dynamics model's rollouts ran, by id
         self.frame_skip = skips.pop() if skips else 1
@@ -93,7 +94,7 @@ class GearWorldModel:
     @torch.no_grad()
     def score(self, states: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
         """G of latent states: the goal score of their decoded images, (M, L) -> (M,)."""
-        return self.goal.expected(self.vae.decode(states))
+        return self.goal.expected(self.decoder(states))
 
     @torch.no_grad()
     def score_observation(self, obs) -> float:
@@ -102,7 +103,7 @@ class GearWorldModel:
         return float(self.goal.expected(to_model_image(image, self.goal.config.image_size))[0])
 
     def selector(self, horizon: int = 10, samples: int = 16, seed: int | None = None, controllers=None,
-                 keep_predictions: bool = False) -> Selector:
+                 keep_predictions: bool = False, batched: bool = True) -> LatentSelector:
         """A selector over `controllers` (default: every one with a dynamics model)."""
         dynamics = {n: self.dynamics[n] for n in (controllers or self.dynamics)}
-        return Selector(dynamics, self, horizon=horizon, samples=samples, seed=seed, keep_predictions=keep_predictions)
+        return LatentSelector(dynamics, self, horizon, samples, seed, keep_predictions, batched)

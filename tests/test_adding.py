@@ -44,3 +44,21 @@ def test_a_lerobot_checkpoint_joins_the_library(act_checkpoint, controller_rollo
     assert world.dynamics["act_insert"].config.frame_skip == 3  # one look-ahead for every controller
     decision = world.selector(horizon=2, samples=2, seed=0).decide(torch.zeros(1, 8))
     assert torch.isfinite(decision.scores).all() and "act_insert" in decision.names
+
+
+def test_a_lerobot_checkpoint_gets_its_own_row_in_table_one(act_checkpoint, tmp_path):
+    """`evaluate controllers --lerobot` adds a row named after the checkpoint's policy type, beside MP, DMP, CNN."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    checkpoint, _ = act_checkpoint
+    exe = Path(sys.executable).parent / "policy-composer"
+    res = subprocess.run([str(exe), "evaluate", "controllers", "--kinds", "", "--lerobot", f"{checkpoint}:insert",
+                          "--trials", "1", "--resolution", "32", "--workers", "1", "--out", str(tmp_path)],
+                         capture_output=True, text=True, timeout=600, env={**os.environ, "HF_HUB_OFFLINE": "1"})
+    assert res.returncode == 0, res.stderr[-2000:]
+    table = (tmp_path / "controllers.md").read_text()
+    row = next(line for line in table.splitlines() if line.startswith("| ACT (LeRobot) |"))
+    assert row.count("/1 (95% CI") == 1 and row.count("; paper -") == 4  # the insert column only

@@ -189,7 +189,7 @@ def test_the_main_job_runs_every_stage_reuses_them_and_writes_a_report_a_browser
     report = (tmp_path / "report.md").read_text()
     for row in ("| MP |", "| DMP |", "| CNN |", "| composed (selector) |", "| head |", "| left_forearm |",
                 "| right_forearm |", "planning steps to the goal", "| step | chosen |", "## Machine",
-                "(95% CI ", "| composed (selector) | picked "):
+                "(95% CI ", "| composed (selector) | picked ", " frames/s", " episodes/s", " trials/s"):
         assert row in report, f"{row!r} missing from the report"
     assert "0 of 12 stages ran" in report
 

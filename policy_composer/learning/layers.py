@@ -79,11 +79,18 @@ class MixtureDensityHead(nn.Module):
         return -torch.logsumexp(log_pi + log_prob, dim=-1).mean()
 
     @staticmethod
-    def sample(log_pi, mu, log_std, generator: torch.Generator | None = None) -> torch.Tensor:
-        k = torch.multinomial(log_pi.exp(), 1, generator=generator).squeeze(-1)
-        idx = torch.arange(len(k))
-        noise = torch.randn(mu[idx, k].shape, generator=generator)
-        return mu[idx, k] + noise * log_std[idx, k].exp()
+    def sample(log_pi, mu, log_std, generator: torch.Generator | None = None,
+               draws: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
+        """One draw per row of log_pi (..., K), mu and log_std (..., K, D): the component by the inverse CDF of a
+        uniform, then Gaussian noise. `draws` (uniforms (...,), standard normals (..., D)) are the caller's, so
+        that a batch of models samples as each model would alone; by default they come from `generator`."""
+        if draws is None:
+            draws = (torch.rand(log_pi.shape[:-1], generator=generator),
+                     torch.randn(mu.shape[:-2] + mu.shape[-1:], generator=generator))
+        u, noise = draws
+        k = (log_pi.exp().cumsum(-1) < u[..., None]).sum(-1, keepdim=True).clamp(max=mu.shape[-2] - 1)
+        k = k[..., None].expand(*k.shape, mu.shape[-1])
+        return mu.gather(-2, k).squeeze(-2) + noise * log_std.gather(-2, k).squeeze(-2).exp()
 
     @staticmethod
     def mode(log_pi, mu, log_std) -> torch.Tensor:
