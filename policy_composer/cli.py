@@ -13,7 +13,7 @@ from policy_composer.data import atomic
 from policy_composer.demo import PROFILES
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 from policy_composer.policies.configuration_dmp import FIT_EPISODES, FIT_FIRST_SEED
-from policy_composer.policies.library import LeRobotSource, LibrarySources, names_of_kind
+from policy_composer.policies.library import LeRobotSource, LibrarySources
 from policy_composer.policies.registry import LibraryError, kinds
 from policy_composer.selector.configuration import ComposeConfig, DynamicsConfig, GoalScoreConfig, VAEConfig
 from policy_composer.tasks.spec import CAMERA_NAMES, CLEARANCE_MM, RESOLUTION, EnvSettings
@@ -253,14 +253,10 @@ def cmd_train_dmp(args: argparse.Namespace) -> int:
 
 def cmd_evaluate_controllers(args: argparse.Namespace) -> int:
     """Paper Table I, rows MP, DMP and CNN, and a row for each --lerobot checkpoint."""
-    from policy_composer.controller_table import evaluate_rows, write_table
-    from policy_composer.policies.lerobot_policy import lerobot_label
+    from policy_composer.controller_table import evaluate_table, write_table
 
-    sources = _sources(args)
-    rows = {kind: names_of_kind(kind) for kind in args.kinds.split(",") if kind}
-    rows.update({lerobot_label(s.path): (s.controller_name,) for s in sources.lerobot})
-    rows = evaluate_rows(rows, sources, args.trials, args.seed, args.resolution, args.clearance,
-                         workers=args.workers or usable_cores())
+    rows = evaluate_table([k for k in args.kinds.split(",") if k], _sources(args), args.trials, args.seed,
+                          args.resolution, args.clearance, workers=args.workers or usable_cores())
     for kind, row in rows.items():
         print(f"{kind}: " + ", ".join(f"{c} {cell}" for c, cell in row.items()))
     print(f"table: {write_table(rows, Path(args.out))}")

@@ -58,12 +58,12 @@ class Composer:
 
     def __init__(self, models: str | Path, sources, config: ComposeConfig, resolution: int = 128,
                  clearance_mm: float = 2.0, knock_out_step: int | None = None, out: Path | None = None,
-                 video_seeds: tuple[int, ...] = ()):
+                 video_seeds: tuple[int, ...] = (), world=None):
         from policy_composer.policies.library import build_library, cameras_needed
         from policy_composer.selector.world_model import GearWorldModel
         from policy_composer.tasks.rollout import make_env
 
-        self.world = GearWorldModel.load(models)
+        self.world = world if world is not None else GearWorldModel.load(models)  # given: loaded in this process
         names = list(self.world.dynamics)
         cameras = tuple(dict.fromkeys((self.world.camera, *cameras_needed(names, sources))))
         self.env = make_env("rgb", resolution, clearance_mm, cameras, knock_out_step=knock_out_step)
@@ -95,7 +95,7 @@ def compose_library(models: str | Path, sources, config: ComposeConfig, seeds: l
 
     from policy_composer.policies.library import model_ids
     from policy_composer.selector.world_model import GearWorldModel
-    from policy_composer.workers import run_episodes
+    from policy_composer.workers import in_process, run_episodes
 
     out = Path(out)
     check_out(out, resume)  # first: a finished run in `out` is refused before anything loads
@@ -115,7 +115,7 @@ def compose_library(models: str | Path, sources, config: ComposeConfig, seeds: l
         atomic.write_text(path, "".join(json.dumps(e.to_dict()) + "\n" for e in kept.values()))
     todo = [s for s in seeds if s not in kept]
     setup = partial(Composer, models, sources, config, resolution, clearance_mm, knock_out_step, out,
-                    tuple(seeds[:videos]))
+                    tuple(seeds[:videos]), world=world if in_process(todo, workers) else None)
     with open(path, "a" if resume else "w") as log, \
             tqdm(total=len(todo), desc="composed episodes", unit="episode", disable=not progress) as bar:
         def save(_seed: int, episode: ComposedEpisode) -> None:

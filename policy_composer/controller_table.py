@@ -177,11 +177,13 @@ def evaluate_controllers(names, sources, trials: int, first_seed: int = 0, resol
 
 def evaluate_table(kinds: list[str], sources, trials: int, first_seed: int = 0, resolution: int = 128,
                    clearance_mm: float = 2.0, progress: bool = True, workers: int = 1) -> dict[str, dict[str, Cell]]:
-    """Rows of Table I for `kinds` (MP, DMP, CNN)."""
+    """Rows of Table I: one for each of `kinds` (MP, DMP, CNN), then one for each LeRobot checkpoint in `sources`."""
+    from policy_composer.policies.lerobot_policy import lerobot_label
     from policy_composer.policies.library import names_of_kind
 
-    return evaluate_rows({kind: names_of_kind(kind) for kind in kinds}, sources, trials, first_seed, resolution,
-                         clearance_mm, progress, workers)
+    rows = {kind: names_of_kind(kind) for kind in kinds}
+    rows.update({lerobot_label(s.path): (s.controller_name,) for s in sources.lerobot})
+    return evaluate_rows(rows, sources, trials, first_seed, resolution, clearance_mm, progress, workers)
 
 
 def table_row(kind: str, row: dict[str, Cell]) -> str:

@@ -23,6 +23,11 @@ def usable_cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
+def in_process(items: list, workers: int) -> bool:
+    """Whether `run_episodes` runs `items` in this process (no pool to start)."""
+    return workers <= 1 or len(items) <= 1
+
+
 def _start(setup: Callable[[], Runner]) -> None:
     global _runner
     import torch
@@ -46,7 +51,7 @@ def run_episodes(setup: Callable[[], Runner], items: Iterable, workers: int = 1,
     results = {}
     if not items:
         return []
-    if workers <= 1 or len(items) <= 1:
+    if in_process(items, workers):
         runner = setup()
         try:
             for item in items:
