@@ -153,7 +153,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     settings = replace(EnvSettings(**previous), **given) if previous else EnvSettings(**given)
     try:
         record_recipe(recipe, root, episodes=args.episodes, seed=args.seed, resume=args.resume, settings=settings,
-                      sources=sources)
+                      sources=sources, workers=args.workers or usable_cores())
     except KeyboardInterrupt:
         print(f"\ninterrupted: every finished episode is saved in {root}; continue with --resume", file=sys.stderr)
         return 130
@@ -494,6 +494,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="comma-separated subset of the recipe's controllers to record "
                              "(recipes that run the controllers)")
     model_options(record)
+    workers_option(record)
     record.set_defaults(func=cmd_record)
 
     mdp = sub.add_parser("mdp", help="the paper's random-walk MDP experiments (19 and 100 states)")

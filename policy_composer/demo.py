@@ -108,13 +108,13 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
     return [
         Stage("insertion-demos", f"record the insertion demonstrations ({p.insertion_demos})",
               record(insertion, p.insertion_demos),
-              lambda out, _: _record(insertion, out, p.insertion_demos, p.resolution), resumable=True),
+              lambda out, _: _record(insertion, out, p.insertion_demos, p.resolution, workers), resumable=True),
         Stage("transport-demos", f"record the pick-up and carry demonstrations ({p.transport_demos})",
               record(transport, p.transport_demos),
-              lambda out, _: _record(transport, out, p.transport_demos, p.resolution), resumable=True),
+              lambda out, _: _record(transport, out, p.transport_demos, p.resolution, workers), resumable=True),
         Stage("full-task-demos", f"record the full-task demonstrations ({p.full_task_demos}, of which "
               f"{p.train_demos} train the goal scorers)", record(full_task, p.full_task_demos),
-              lambda out, _: _record(full_task, out, p.full_task_demos, p.resolution), resumable=True),
+              lambda out, _: _record(full_task, out, p.full_task_demos, p.resolution, workers), resumable=True),
         Stage("dmp", f"fit the DMPs to the motion planner's episodes ({p.dmp_episodes})",
               {"episodes": p.dmp_episodes, **env},
               lambda out, _: _fit_dmp(out, p.dmp_episodes)),
@@ -123,8 +123,8 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
               lambda out, i: _train_cnn(out, i, cnn), inputs=("insertion-demos", "transport-demos")),
         Stage("controller-rollouts", f"record rollouts of each controller ({p.rollouts} each)",
               {**record(rollouts, p.rollouts), **library},
-              lambda out, i: _record(rollouts, out, p.rollouts, p.resolution, _sources(i)), inputs=("dmp", "cnn"),
-              resumable=True),
+              lambda out, i: _record(rollouts, out, p.rollouts, p.resolution, workers, _sources(i)),
+              inputs=("dmp", "cnn"), resumable=True),
         Stage("world-model", "train the VAE, the dynamics models and the goal scorers",
               {"vae": asdict(vae), "dynamics": asdict(dynamics), "goal": asdict(goal), "cameras": CAMERAS},
               lambda out, i: _train_world(out, i, vae, dynamics, goal),
@@ -167,7 +167,7 @@ def run_demo(profile: str = "quick", out: str | Path = "results",
     return records, report
 
 
-def _record(recipe, out: Path, episodes: int, resolution: int, sources=None) -> dict:
+def _record(recipe, out: Path, episodes: int, resolution: int, workers: int, sources=None) -> dict:
     from policy_composer.data.catalog import summarize
     from policy_composer.record import record_recipe
     from policy_composer.tasks.spec import EnvSettings
@@ -177,9 +177,9 @@ def _record(recipe, out: Path, episodes: int, resolution: int, sources=None) -> 
     if root.exists() and not resume:  # interrupted before its first episode was saved
         shutil.rmtree(root)
     record_recipe(recipe, root, episodes=episodes, resume=resume, settings=EnvSettings(resolution=resolution),
-                  sources=sources)
+                  sources=sources, workers=workers)
     s = summarize(root)
-    return {"episodes": s["episodes"], "frames": s["frames"], "outcomes": s["outcomes"]}
+    return {"episodes": s["episodes"], "frames": s["frames"], "outcomes": s["outcomes"], "workers": workers}
 
 
 def _sources(inputs: dict[str, Path]):

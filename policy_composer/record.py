@@ -1,9 +1,17 @@
-"""Record a recipe's dataset: make the env, drive it with the recipe's driver, keep the episodes it asks for."""
+"""Record a recipe's dataset: episodes run in one or more processes, each with its own env and the recipe's driver,
+and this process writes the ones the recipe keeps into one LeRobot dataset, in the order of their seeds.
+
+An episode depends on its seed only, and the seeds are handed out in rounds of as many as are still wanted, so any
+number of workers writes the dataset the serial loop writes, episode for episode; each episode is saved as soon
+as it and those of lower seeds are in, so an interrupted recording keeps them all and `--resume` goes on from there.
+"""
 
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import asdict, replace
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, replace
+from functools import partial
 from pathlib import Path
 
 from policy_composer.data import interrupt, journal
@@ -11,7 +19,17 @@ from policy_composer.data.features import read_sidecar
 from policy_composer.data.recipes import Recipe, RecipeError
 from policy_composer.policies.library import LibrarySources, all_names, build_library, cameras_needed, model_ids
 from policy_composer.tasks.rollout import make_env
-from policy_composer.tasks.spec import EXPERT_PHASES, EnvSettings
+from policy_composer.tasks.spec import CONTROL_FREQ, EXPERT_PHASES, EnvSettings
+
+
+@dataclass
+class RecordedEpisode:
+    """What a worker sends back: the frames to write, and the episode's entry in the dataset's sidecar."""
+
+    seed: int
+    frames: list[dict]
+    success: bool
+    info: dict
 
 
 def recipe_controllers(recipe: Recipe) -> tuple[str, ...]:
@@ -21,19 +39,20 @@ def recipe_controllers(recipe: Recipe) -> tuple[str, ...]:
 
 def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None, seed: int | None = None,
                   resume: bool = False, settings: EnvSettings | None = None, progress: bool = True,
-                  sources: LibrarySources | None = None) -> dict:
+                  sources: LibrarySources | None = None, workers: int = 1) -> dict:
     """Record until the dataset at `root` holds `episodes` episodes (per controller, for the "controllers"
     driver); returns its sidecar (seeds, success, ...).
 
     With `resume`, an existing dataset is continued with its own env settings and models, from the seed after the
     last one it tried; an episode interrupted mid-way is simply recorded again. A `seed`, `settings` or model
     that contradicts the dataset's is refused. `sources` says where the library's trained models are (the
-    "controllers" driver).
+    "controllers" driver). The episodes run on `workers` processes; the dataset is the same for any number.
     """
     import torch
     from tqdm import tqdm
 
-    from policy_composer.data.recorder import LeRobotRecorder
+    from policy_composer.data.recorder import LeRobotWriter
+    from policy_composer.workers import Workers
 
     torch.set_num_threads(1)  # the encoder threads need the second core
     root = Path(root)
@@ -51,29 +70,21 @@ def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None,
     needed = cameras_needed(controllers, sources)
     if not previous:  # the recipe's cameras, and any others its controllers read
         settings = replace(settings, cameras=tuple(dict.fromkeys((*recipe.cameras, *needed))))
-    # A resumed dataset keeps its cameras; a controller added to it may read more, which are rendered, not recorded.
-    rendered = tuple(dict.fromkeys((*settings.cameras, *needed)))
-    env = make_env("rgb", settings.resolution, settings.clearance_mm, rendered)
-    recorder = LeRobotRecorder(env, root, task=recipe.task, resume=resume, cameras=settings.cameras,
-                               metadata={"recipe": recipe.name, "env": asdict(settings), "controller_models": models,
-                                         "expert": asdict(recipe.expert), "train_episodes": recipe.train_episodes})
-    recorded = Counter(e.get("controller_name") for e in recorder.episodes)  # per controller, when resuming
-    if recipe.driver == "controllers":  # a controller with more episodes than asked for counts only what was asked
-        total, done = per_unit * len(controllers), sum(min(recorded[n], per_unit) for n in controllers)
-    else:
-        total, done = per_unit, min(recorder.num_episodes, per_unit)
-    bar = tqdm(total=total, initial=done, desc=recipe.name, unit="episode", disable=not progress)
-    try:
-        if recipe.driver == "controllers":
-            library = build_library(recorder, controllers, sources)
-            for name in controllers:
-                seed = _record_controller(recorder, library[name], recorded[name], per_unit, seed, bar)
-        else:
-            _record_expert(recipe, recorder, per_unit, seed, bar)
-    finally:
-        bar.close()
-        env.close()
-    return recorder.sidecar
+    writer = LeRobotWriter(root, recipe.task, CONTROL_FREQ, settings.resolution, settings.cameras, resume=resume,
+                           metadata={"recipe": recipe.name, "env": asdict(settings), "controller_models": models,
+                                     "expert": asdict(recipe.expert), "train_episodes": recipe.train_episodes})
+    recorded = Counter(e.get("controller_name") for e in writer.episodes)  # per controller, when resuming
+    units = controllers if recipe.driver == "controllers" else (None,)
+    done = {u: min(recorded[u] if u else writer.num_episodes, per_unit) for u in units}
+    setup = partial(EpisodeRecorder, recipe, settings, sources, controllers)
+    total = per_unit * len(units)
+    with tqdm(total=total, initial=sum(done.values()), desc=recipe.name, unit="episode", disable=not progress) as bar, \
+            Workers(setup, min(workers, max(total - sum(done.values()), 1))) as pool:
+        for unit in units:
+            # The expert's episodes that fail are dropped (the recipe keeps successes): give up when most do.
+            attempts = None if unit else 3 * per_unit + 5
+            seed = _record_unit(pool, writer, unit, done[unit], per_unit, seed, attempts, partial(_saved, bar))
+    return writer.sidecar
 
 
 def check_resume(root: Path, previous: dict, recipe: Recipe, seed: int | None, settings: EnvSettings | None,
@@ -94,66 +105,99 @@ def check_resume(root: Path, previous: dict, recipe: Recipe, seed: int | None, s
                           f"--root")
 
 
-def _save(recorder, bar, success: bool, seed: int, **info) -> None:
-    recorder.sidecar["next_seed"] = seed + 1
-    recorder.save_episode(success, seed=seed, **info)
+def _record_unit(pool, writer, unit: str | None, done: int, target: int, seed: int, attempts: int | None,
+                 saved: Callable) -> int:
+    """Episodes of one controller (or of the expert, `unit` None) from consecutive seeds until `target` are kept,
+    each saved once the seeds before it are in; returns the next seed."""
+    tried = 0
+    while done < target:
+        items = [(unit, s) for s in range(seed, seed + target - done)]
+        for (_, s), episode in pool.imap(items):
+            tried, seed = tried + 1, s + 1
+            if episode is not None:
+                writer.sidecar["next_seed"] = seed
+                writer.save_episode(episode.frames, episode.success, seed=s, **episode.info)
+                done += 1
+                saved(writer, s)
+            if attempts is not None and tried >= attempts and done < target:
+                raise RuntimeError(f"{writer.sidecar['recipe']}: too few episodes succeed ({writer.num_episodes} kept "
+                                   f"after {tried} attempts); check the env settings")
+    return seed
+
+
+def _saved(bar, writer, seed: int) -> None:
     bar.update()
-    bar.set_postfix(seed=seed, frames=recorder.episodes[-1]["length"])
+    bar.set_postfix(seed=seed, frames=writer.episodes[-1]["length"])
     interrupt.check()
 
 
-def _record_expert(recipe: Recipe, recorder, target: int, seed: int, bar) -> None:
-    """The scripted expert from each seed's reset, recording the recipe's phases."""
-    from policy_composer.tasks.gear_expert import ExpertConfig, GearAssemblyExpert
-    from policy_composer.tasks.rollout import episode_limit
+class EpisodeRecorder:
+    """A recipe's episodes in one process: the env (with the recipe's cameras and any its controllers read) and the
+    driver, built once. Called with (controller name or None for the expert, seed), runs that episode and returns
+    what the recipe keeps of it, or None."""
 
-    expert = GearAssemblyExpert(recorder, ExpertConfig(grasp_offset=recipe.expert.grasp_offset_mm / 1000.0,
-                                                       teleop=recipe.expert.teleop,
-                                                       arrival_error=recipe.expert.arrival_error_mm / 1000.0))
-    limit, attempts = episode_limit(recorder), 0
-    # The episode ends once the expert has left the last phase the recipe records.
-    last = max(map(EXPERT_PHASES.index, recipe.record_phases), default=len(EXPERT_PHASES) - 1)
-    while recorder.num_episodes < target:
-        attempts += 1
-        if attempts > 3 * target + 5:
-            raise RuntimeError(f"{recipe.name}: too few episodes succeed ({recorder.num_episodes} kept after "
-                               f"{attempts - 1} attempts); check the env settings")
-        obs, _ = recorder.reset(seed=seed, options={"start": recipe.start,
-                                                    "grasp_offset_max": recipe.expert.grasp_offset_mm / 1000.0})
+    def __init__(self, recipe: Recipe, settings: EnvSettings, sources: LibrarySources,
+                 controllers: tuple[str, ...]):
+        from policy_composer.data.recorder import FrameBuffer
+        from policy_composer.tasks.gear_expert import ExpertConfig, GearAssemblyExpert
+
+        # A resumed dataset keeps its cameras; a controller added to it may read more: rendered, not recorded.
+        rendered = tuple(dict.fromkeys((*settings.cameras, *cameras_needed(controllers, sources))))
+        self.buffer = FrameBuffer(make_env("rgb", settings.resolution, settings.clearance_mm, rendered),
+                                  settings.cameras)
+        self.recipe = recipe
+        if recipe.driver == "controllers":
+            self.library = build_library(self.buffer, controllers, sources)
+        else:
+            self.expert = GearAssemblyExpert(self.buffer, ExpertConfig(
+                grasp_offset=recipe.expert.grasp_offset_mm / 1000.0, teleop=recipe.expert.teleop,
+                arrival_error=recipe.expert.arrival_error_mm / 1000.0))
+
+    def __call__(self, item: tuple[str | None, int]) -> RecordedEpisode | None:
+        name, seed = item
+        return self._controller(self.library[name], seed) if name else self._expert(seed)
+
+    def close(self) -> None:
+        self.buffer.close()
+
+    def _expert(self, seed: int) -> RecordedEpisode | None:
+        """The scripted expert from the seed's reset, recording the recipe's phases."""
+        from policy_composer.tasks.rollout import episode_limit
+
+        recipe, buffer, expert = self.recipe, self.buffer, self.expert
+        obs, _ = buffer.reset(seed=seed, options={"start": recipe.start,
+                                                  "grasp_offset_max": recipe.expert.grasp_offset_mm / 1000.0})
         expert.reset(seed)
-        recorder.controller = expert.name
+        buffer.controller = expert.name
         info = None
-        for _ in range(limit):
+        # The episode ends once the expert has left the last phase the recipe records.
+        last = max(map(EXPERT_PHASES.index, recipe.record_phases), default=len(EXPERT_PHASES) - 1)
+        for _ in range(episode_limit(buffer)):
             if expert.done or EXPERT_PHASES.index(expert.phase) > last:
                 break
-            recorder.recording = not recipe.record_phases or expert.phase in recipe.record_phases
-            obs, _, _, _, info = recorder.step(expert.act(obs))
+            buffer.recording = not recipe.record_phases or expert.phase in recipe.record_phases
+            obs, _, _, _, info = buffer.step(expert.act(obs))
         success = info is not None and bool(info[recipe.goal][0])
-        if recorder.buffered_frames == 0 or (recipe.keep == "success" and not success):
-            recorder.discard_episode()
-        else:
-            _save(recorder, bar, success, seed, grasp_offset_mm=round(expert.grasp_offset * 1000, 3))
-        seed += 1
+        if buffer.buffered_frames == 0 or (recipe.keep == "success" and not success):
+            buffer.discard_episode()
+            return None
+        return RecordedEpisode(seed, buffer.take_episode(), success,
+                               {"grasp_offset_mm": round(expert.grasp_offset * 1000, 3)})
 
+    def _controller(self, controller, seed: int) -> RecordedEpisode | None:
+        """One activation of `controller` from a start state inside its initiation set (the open-loop expert run,
+        unrecorded, up to where the controller's subtask begins); failures are kept."""
+        from policy_composer.controller_table import start_state
+        from policy_composer.policies.arm import run_activation
 
-def _record_controller(recorder, controller, done: int, target: int, seed: int, bar) -> int:
-    """Activations of one controller until it has `target` (`done` are recorded already), each from a start state
-    inside its initiation set (the open-loop expert run, unrecorded, up to where the controller's subtask begins);
-    failures are kept. Returns the next seed."""
-    from policy_composer.controller_table import start_state
-    from policy_composer.policies.arm import run_activation
-
-    while done < target:
-        recorder.recording = False
-        obs = start_state(recorder, seed, controller.subtask.name)
-        recorder.recording = True
-        recorder.controller = controller.name
-        run_activation(recorder, controller, obs, seed)
-        if recorder.buffered_frames == 0:
-            recorder.discard_episode()
-        else:
-            _save(recorder, bar, controller.outcome.value == "done", seed, controller_name=controller.name,
-                  outcome=controller.outcome.value)
-            done += 1
-        seed += 1
-    return seed
+        buffer = self.buffer
+        buffer.recording = False
+        obs = start_state(buffer, seed, controller.subtask.name)
+        buffer.recording = True
+        buffer.controller = controller.name
+        run_activation(buffer, controller, obs, seed)
+        if buffer.buffered_frames == 0:
+            buffer.discard_episode()
+            return None
+        return RecordedEpisode(seed, buffer.take_episode(), controller.outcome.value == "done",
+                               {"controller_name": controller.name, "outcome": controller.outcome.value})

@@ -20,6 +20,8 @@ ACTION_NAMES = tuple(
 )
 
 
+CONTROL_FREQ = 20  # control steps per second (ManiSkill's default, which GearAssembly-v1 keeps): the datasets' fps
+
 # Where an episode starts (reset option "start"): the gear on the table, or already in the left gripper above the
 # peg where the insertion begins.
 START_STATES = ("table", "pre_insertion")

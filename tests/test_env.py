@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from policy_composer.tasks.spec import CAMERA_NAMES, STATE_NAMES
+from policy_composer.tasks.spec import CAMERA_NAMES, CONTROL_FREQ, STATE_NAMES
 
 
 @pytest.fixture(scope="module")
@@ -79,6 +79,7 @@ def test_evaluate_reports_the_subtask_flags_and_stage(state_env):
     for key in ("success", "gear_grasped", "gear_lifted", "gear_at_peg", "gear_inserted", "stage"):
         assert key in info
     assert int(info["stage"][0]) == 0 and not bool(info["success"][0])
+    assert state_env.unwrapped.control_freq == CONTROL_FREQ  # the fps a recording's writer is made with
 
 
 @pytest.mark.parametrize("tilt_deg, inserted", [(0, True), (10, True), (40, False), (80, False)])

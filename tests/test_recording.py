@@ -14,6 +14,7 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
+import psutil
 import pytest
 import torch
 from conftest import tree_digest
@@ -300,28 +301,34 @@ def _wait_for_episodes(proc: subprocess.Popen, root: Path, n: int, timeout: floa
     raise TimeoutError(f"no {n} episodes recorded in {timeout} s")
 
 
-@pytest.mark.parametrize("sig", ["SIGKILL", "SIGINT"])
-def test_interrupted_recording_keeps_finished_episodes_and_resumes(insertion_demos, tmp_path, sig):
-    """Killed or stopped after its first episode, a recording keeps that episode, and resumed, it records what an
-    uninterrupted recording of the same settings (the insertion_demos fixture) does, frame for frame."""
+@pytest.mark.parametrize("sig, workers", [("SIGKILL", 1), ("SIGKILL", 2), ("SIGINT", 2)])
+def test_interrupted_recording_keeps_finished_episodes_and_resumes(insertion_demos, tmp_path, sig, workers):
+    """Killed or stopped after its first episode, a recording (on one process or several) keeps that episode, and
+    resumed, it records what an uninterrupted serial recording of the same settings (the insertion_demos fixture)
+    does, frame for frame."""
     import signal
 
     root = tmp_path / "demos"
     env = {**os.environ, "HF_HUB_OFFLINE": "1"}
     # The recorder as a foreground process would run: a child inherits an ignored SIGINT (as background jobs
     # have it), in which case Python never turns Ctrl-C into KeyboardInterrupt.
-    proc = subprocess.Popen(_record_cmd(root, 2), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+    proc = subprocess.Popen(_record_cmd(root, 2, "--workers", str(workers)), env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     _wait_for_episodes(proc, root, 1)
+    children = psutil.Process(proc.pid).children(recursive=True)
     proc.send_signal(getattr(signal, sig))
     rc = proc.wait(timeout=120)
     assert rc == (-9 if sig == "SIGKILL" else 130), proc.stderr.read()
+    _, alive = psutil.wait_procs(children, timeout=30)
+    assert not alive, f"workers left running after the recorder stopped: {alive}"
     # Every finished episode loads with plain LeRobotDataset (after rolling back a save cut short, if any).
     ds = open_dataset(root)
     kept = ds.num_episodes
     assert kept == 1 and ds.num_frames == sum(json.loads((root / "meta/policy_composer.json").read_text())[
         "episodes"][i]["length"] for i in range(kept))
-    subprocess.run(_record_cmd(root, 2, "--resume"), env=env, check=True, capture_output=True)
+    subprocess.run(_record_cmd(root, 2, "--resume", "--workers", str(workers)), env=env, check=True,
+                   capture_output=True)
     ds = open_dataset(root)
     sidecar = json.loads((root / "meta" / "policy_composer.json").read_text())
     seeds = [e["seed"] for e in sidecar["episodes"]]
@@ -334,6 +341,8 @@ def test_interrupted_recording_keeps_finished_episodes_and_resumes(insertion_dem
     for column in ("observation.state", "action", "episode_index", "frame_index"):
         assert torch.equal(torch.as_tensor(np.stack(ds.hf_dataset[column])),
                            torch.as_tensor(np.stack(uninterrupted.hf_dataset[column]))), column
+    last = len(ds) - 1
+    assert torch.equal(ds[last]["observation.images.head"], uninterrupted[last]["observation.images.head"])
 
 
 def test_lerobot_trainer_runs_on_our_dataset(act_checkpoint):

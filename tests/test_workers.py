@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
+import json
+
+import numpy as np
 import pytest
+import torch
 
 from policy_composer.controller_table import evaluate_rows
+from policy_composer.data.features import open_dataset
 from policy_composer.policies.library import LibrarySources
 from policy_composer.workers import run_episodes
 
@@ -15,6 +20,15 @@ def _square(x: int) -> int:
 
 def _squarer():
     return _square
+
+
+def _broken():
+    raise ValueError("no model at /nowhere: train it first")
+
+
+def test_a_worker_that_cannot_start_raises_its_error_instead_of_hanging():
+    with pytest.raises(ValueError, match="no model at /nowhere"):
+        run_episodes(_broken, [1, 2], workers=2)
 
 
 def test_results_come_back_in_the_order_of_the_items():
@@ -31,3 +45,28 @@ def test_table_one_on_two_workers_gives_the_serial_cells():
                                       workers=w) for w in (1, 2))
     assert parallel == serial
     assert [serial["MP"][c].trials for c in ("pick", "move", "insert", "full")] == [2, 0, 2, 0]
+
+
+@pytest.mark.timeout(600)
+def test_rollouts_recorded_on_two_workers_are_the_serial_dataset(controller_rollouts, tmp_path):
+    """The same recipe and seeds on 2 workers: one LeRobot dataset, equal to the serial one episode for episode."""
+    from dataclasses import replace
+
+    from policy_composer.data.recipes import load_recipe
+    from policy_composer.record import record_recipe
+    from policy_composer.tasks.spec import EnvSettings
+
+    root = tmp_path / "rollouts"
+    recipe = replace(load_recipe("gear-controller-rollouts"), controllers=("mp_pick", "mp_insert"))
+    record_recipe(recipe, root, episodes=1, settings=EnvSettings(resolution=32), progress=False,
+                  sources=LibrarySources(max_grasp_offset=0.0), workers=2)
+    ours, theirs = (json.loads((r / "meta" / "policy_composer.json").read_text()) for r in (root, controller_rollouts))
+    assert ours == theirs  # seeds, controllers, outcomes, lengths, next seed
+    ours, theirs = open_dataset(root), open_dataset(controller_rollouts)
+    assert ours.num_frames == theirs.num_frames
+    for column in ("observation.state", "action", "controller", "progress", "episode_index"):
+        assert torch.equal(torch.as_tensor(np.stack(ours.hf_dataset[column])),
+                           torch.as_tensor(np.stack(theirs.hf_dataset[column]))), column
+    for i in (0, ours.num_frames - 1):  # the videos decode to the same images
+        for key in ours.meta.video_keys:
+            assert torch.equal(ours[i][key], theirs[i][key]), (i, key)

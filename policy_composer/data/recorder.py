@@ -1,12 +1,13 @@
 """Record GearAssembly-v1 rollouts into a LeRobotDataset, the way ManiSkill's `RecordEpisode` records trajectories.
 
-`LeRobotRecorder` wraps the env: every `step` while `recording` is on buffers the observation the action
-was chosen from, the action, the stage and the controller that produced it. `save_episode` labels the
-buffered frames (progress, done) and writes them as one LeRobot episode: videos per camera (h264 with
-streaming encoding, about 3x faster than lerobot's default AV1 here), the rest in parquet.
+Two halves, so that episodes can run in worker processes and be written by one: `FrameBuffer` wraps the env and,
+while `recording` is on, buffers the observation each action was chosen from, the action, the stage and the name
+of the controller that produced it; `LeRobotWriter` labels an episode's frames (progress, done) and writes them as
+one LeRobot episode: videos per camera (h264 with streaming encoding, about 3x faster than lerobot's default AV1
+here), the rest in parquet. `LeRobotRecorder` is the two in one process.
 
 Each save is journalled (see `journal`), so a Ctrl-C or `kill -9` at any moment leaves every episode saved
-before it loadable, and `LeRobotRecorder(..., resume=True)` appends to the same dataset.
+before it loadable, and a writer (or recorder) made with `resume=True` appends to the same dataset.
 """
 
 from __future__ import annotations
@@ -43,25 +44,18 @@ def _flat(action, env) -> np.ndarray:
     return torch.as_tensor(action, dtype=torch.float32).reshape(-1).cpu().numpy()
 
 
-class LeRobotRecorder(gym.Wrapper):
-    """Wraps a single GearAssembly-v1 env (obs_mode "rgb") and saves chosen episodes to a LeRobotDataset, with
-    `cameras` (default: every camera the env renders; the env may render more, for a controller that reads them)."""
+class FrameBuffer(gym.Wrapper):
+    """Wraps a single GearAssembly-v1 env (obs_mode "rgb") and buffers the frames of the episode being recorded,
+    with `cameras` (default: every camera the env renders; it may render more, for a controller that reads them).
+    Frames are plain arrays and the controller's name, so they can be sent to the process that writes them."""
 
-    def __init__(self, env: gym.Env, root: str | Path, task: str, repo_id: str | None = None, resume: bool = False,
-                 metadata: dict | None = None, vcodec: str = VCODEC, streaming_encoding: bool = True,
-                 cameras: tuple[str, ...] | None = None):
+    def __init__(self, env: gym.Env, cameras: tuple[str, ...] | None = None):
         super().__init__(env)
-        from lerobot.configs.video import RGBEncoderConfig
-
-        self.video = {"rgb_encoder": RGBEncoderConfig(vcodec=vcodec), "streaming_encoding": streaming_encoding}
         u = env.unwrapped
         if u.num_envs != 1:
             raise ValueError(f"the recorder writes one episode at a time; got num_envs={u.num_envs}")
         if "rgb" not in u.obs_mode:
             raise ValueError(f"recording needs camera images: make the env with obs_mode='rgb' (got {u.obs_mode!r})")
-        self.root = Path(root)
-        self.task = task
-        self.fps = int(u.control_freq)
         width, height = u.camera_size
         if width != height:
             raise ValueError(f"recordings use square camera images; got {width}x{height}")
@@ -70,11 +64,62 @@ class LeRobotRecorder(gym.Wrapper):
         if missing:
             raise ValueError(f"the recorder records cameras {missing} that the env does not render; make the env "
                              f"with them")
-        self.features = dataset_features(self.cameras, width)
+        self.resolution, self.fps = width, int(u.control_freq)
         self.recording = True
         self.controller = "unknown"  # set by the driver: the controller whose action the next step applies
         self._frames: list[dict] = []
         self._obs = None
+
+    def reset(self, **kwargs):
+        obs, info = self.env.reset(**kwargs)
+        self._frames = []
+        self._obs = obs
+        self._stage = int(self.env.unwrapped.evaluate()["stage"][0])
+        return obs, info
+
+    def step(self, action):
+        interrupt.check()  # a Ctrl-C swallowed mid-episode (say, by a rebuilt scene's __del__) ends it here
+        u = self.env.unwrapped
+        flat = _flat(action, u)
+        obs, reward, terminated, truncated, info = self.env.step(u.flat_to_dict_action(flat))
+        if self.recording:
+            prev = self._obs
+            self._frames.append({
+                **{image_key(c): prev["sensor_data"][c]["rgb"][0].cpu().numpy() for c in self.cameras},
+                "observation.state": prev["extra"]["state"][0].cpu().numpy().astype(np.float32),
+                "action": flat.astype(np.float32),
+                "stage": np.array([self._stage], dtype=np.int64),
+                "controller": self.controller,  # its index in the dataset's list, when written
+                "next.success": np.array([bool(info["success"][0])]),
+            })
+        self._obs = obs
+        self._stage = int(info["stage"][0])
+        return obs, reward, terminated, truncated, info
+
+    @property
+    def buffered_frames(self) -> int:
+        return len(self._frames)
+
+    def discard_episode(self) -> None:
+        self._frames = []
+
+    def take_episode(self) -> list[dict]:
+        """The buffered frames, leaving the buffer empty."""
+        frames, self._frames = self._frames, []
+        return frames
+
+
+class LeRobotWriter:
+    """Writes episodes of buffered frames into the LeRobotDataset at `root`, each one whole or not at all."""
+
+    def __init__(self, root: str | Path, task: str, fps: int, resolution: int, cameras: tuple[str, ...],
+                 repo_id: str | None = None, resume: bool = False, metadata: dict | None = None,
+                 vcodec: str = VCODEC, streaming_encoding: bool = True):
+        from lerobot.configs.video import RGBEncoderConfig
+
+        self.video = {"rgb_encoder": RGBEncoderConfig(vcodec=vcodec), "streaming_encoding": streaming_encoding}
+        self.root, self.task, self.fps, self.cameras = Path(root), task, fps, tuple(cameras)
+        self.features = dataset_features(self.cameras, resolution)
         if resume:
             journal.recover(self.root)
         if self.root.exists():
@@ -88,7 +133,6 @@ class LeRobotRecorder(gym.Wrapper):
         self.sidecar.update(metadata or {})
         self.repo_id = self.sidecar["repo_id"]
 
-    # ----------------------------------------------------------------- queries
     @property
     def num_episodes(self) -> int:
         return len(self.sidecar["episodes"])
@@ -111,61 +155,24 @@ class LeRobotRecorder(gym.Wrapper):
             raise DatasetError(f"cannot resume {self.root}: it holds {theirs} at {info['fps']} fps, this env records "
                                f"{ours} at {self.fps} fps (same cameras and resolution needed)")
 
-    # ----------------------------------------------------------------- gym
-    def reset(self, **kwargs):
-        obs, info = self.env.reset(**kwargs)
-        self._frames = []
-        self._obs = obs
-        self._stage = int(self.env.unwrapped.evaluate()["stage"][0])
-        return obs, info
-
-    def step(self, action):
-        interrupt.check()  # a Ctrl-C swallowed mid-episode (say, by a rebuilt scene's __del__) ends it here
-        u = self.env.unwrapped
-        flat = _flat(action, u)
-        obs, reward, terminated, truncated, info = self.env.step(u.flat_to_dict_action(flat))
-        if self.recording:
-            prev = self._obs
-            self._frames.append({
-                **{image_key(c): prev["sensor_data"][c]["rgb"][0].cpu().numpy() for c in self.cameras},
-                "observation.state": prev["extra"]["state"][0].cpu().numpy().astype(np.float32),
-                "action": flat.astype(np.float32),
-                "stage": np.array([self._stage], dtype=np.int64),
-                "controller": np.array([self._controller_index(self.controller)], dtype=np.int64),
-                "next.success": np.array([bool(info["success"][0])]),
-            })
-        self._obs = obs
-        self._stage = int(info["stage"][0])
-        return obs, reward, terminated, truncated, info
-
     def _controller_index(self, name: str) -> int:
         names = self.sidecar["controllers"]
         if name not in names:
             names.append(name)
         return names.index(name)
 
-    @property
-    def buffered_frames(self) -> int:
-        return len(self._frames)
-
-    # ----------------------------------------------------------------- saving
-    def discard_episode(self) -> None:
-        self._frames = []
-
-    def save_episode(self, success: bool, **episode_info) -> None:
-        """Label the buffered frames and write them as one episode; all or nothing, even on kill -9."""
+    def save_episode(self, frames: list[dict], success: bool, **episode_info) -> None:
+        """Label `frames` (from a `FrameBuffer`) and write them as one episode; all or nothing, even on kill -9."""
         from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
         import datasets
 
-        frames, self._frames = self._frames, []
         if not frames:
             raise ValueError("no frames to save: step the env with recording on first")
         T = len(frames)
-        for t, frame in enumerate(frames):
-            frame["progress"] = np.array([t / max(T - 1, 1) if success else -1.0], dtype=np.float32)
-            frame["next.done"] = np.array([t == T - 1])
-            frame["task"] = self.task
+        frames = [{**frame, "controller": np.array([self._controller_index(frame["controller"])], dtype=np.int64),
+                   "progress": np.array([t / max(T - 1, 1) if success else -1.0], dtype=np.float32),
+                   "next.done": np.array([t == T - 1]), "task": self.task} for t, frame in enumerate(frames)]
         with interrupt.held_back(), _quiet_lerobot():  # an episode is written whole
             journal.begin(self.root)
             if self.root.exists():  # lerobot's resume path: this episode goes into new files
@@ -181,3 +188,30 @@ class LeRobotRecorder(gym.Wrapper):
             self.sidecar["episodes"].append({"success": bool(success), "length": T, **episode_info})
             (self.root / SIDECAR).write_text(json.dumps(self.sidecar, indent=1))
             journal.commit(self.root)
+
+
+class LeRobotRecorder(FrameBuffer):
+    """A `FrameBuffer` whose `save_episode` writes what it buffered through its own `LeRobotWriter`: recording in
+    one process."""
+
+    def __init__(self, env: gym.Env, root: str | Path, task: str, repo_id: str | None = None, resume: bool = False,
+                 metadata: dict | None = None, vcodec: str = VCODEC, streaming_encoding: bool = True,
+                 cameras: tuple[str, ...] | None = None):
+        super().__init__(env, cameras)
+        self.writer = LeRobotWriter(root, task, self.fps, self.resolution, self.cameras, repo_id, resume, metadata,
+                                    vcodec, streaming_encoding)
+
+    @property
+    def sidecar(self) -> dict:
+        return self.writer.sidecar
+
+    @property
+    def episodes(self) -> list[dict]:
+        return self.writer.episodes
+
+    @property
+    def num_episodes(self) -> int:
+        return self.writer.num_episodes
+
+    def save_episode(self, success: bool, **episode_info) -> None:
+        self.writer.save_episode(self.take_episode(), success, **episode_info)
