@@ -2,11 +2,11 @@
 
 Run: python benchmarks/run_all.py [--main-job-profile smoke|quick|paper] [--skip-main-job]
 
-Each benchmark prints its figures beside a reference measured in the same process (env steps/s against
-ManiSkill's PickCube-v1, recording against rendering alone, selector latency against one VAE encoding); this
-script runs them in turn (never side by side: the machine has 2 cores) and then times `policy-composer demo`
-from scratch in a temporary folder (default profile `smoke`, every stage at its smallest; `quick` is the 30-minute
-main job). The per-stage times of that run follow its wall time.
+Each benchmark prints its figures beside a reference measured in the same run (env steps/s against ManiSkill's
+PickCube-v1, recording against rendering alone, selector latency against one VAE encoding, each episode loop on 2
+workers against 1); this script runs them in turn (never side by side: the machine has 2 cores) and then times
+`policy-composer demo` from scratch in a temporary folder (default profile `smoke`, every stage at its smallest;
+`quick` is the 30-minute main job). The per-stage times of that run follow its wall time.
 """
 
 from __future__ import annotations
@@ -23,7 +23,8 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 BENCHMARKS = [("env steps/s", ["env_speed.py"]),
               ("recording and decoding frames/s", ["recording_speed.py"]),
-              ("selector latency and training times", ["selector_speed.py"])]
+              ("selector latency and training times", ["selector_speed.py"]),
+              ("episode loops on 1 and 2 workers", ["workers_speed.py"])]
 
 
 def run(label: str, cmd: list[str], echo: bool = True) -> float:

@@ -220,14 +220,21 @@ def cmd_mdp(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_train_policy(args: argparse.Namespace) -> int:
-    """Behaviour-clone the CNN policy of one subtask on its demonstrations."""
+def _training_threads(threads: int) -> None:
+    """--threads, shared among the processes when `accelerate launch` runs the training data-parallel."""
     import torch
 
+    from policy_composer.learning.training import threads_per_process
+
+    torch.set_num_threads(threads_per_process(threads))
+
+
+def cmd_train_policy(args: argparse.Namespace) -> int:
+    """Behaviour-clone the CNN policy of one subtask on its demonstrations."""
     from policy_composer.policies.cnn.configuration_cnn import DEMONSTRATIONS
     from policy_composer.policies.cnn.train import train_cnn_policy
 
-    torch.set_num_threads(args.threads)
+    _training_threads(args.threads)
     config = config_from(args, CNNPolicyConfig)
     dataset = args.dataset or _dataset(DEMONSTRATIONS[config.subtask][0])
     out = args.out or str(Path(kinds()["cnn"].model_path) / config.subtask)
@@ -265,11 +272,9 @@ def cmd_evaluate_controllers(args: argparse.Namespace) -> int:
 
 def cmd_train_world_model(args: argparse.Namespace) -> int:
     """The VAE and one dynamics model per controller (paper: Controller Dynamics Modelling)."""
-    import torch
-
     from policy_composer.selector.train import train_world_model
 
-    torch.set_num_threads(args.threads)
+    _training_threads(args.threads)
     timings = train_world_model(
         args.rollouts, args.demos, args.out, config_from(args, VAEConfig), config_from(args, DynamicsConfig),
         controllers=args.controllers.split(",") if args.controllers else None, reuse_vae=args.reuse_vae)
@@ -280,11 +285,9 @@ def cmd_train_world_model(args: argparse.Namespace) -> int:
 
 def cmd_train_goal_score(args: argparse.Namespace) -> int:
     """One goal scorer per camera on the training full-task demos (paper: Goal Score Evaluation)."""
-    import torch
-
     from policy_composer.selector.train import train_goal_scores
 
-    torch.set_num_threads(args.threads)
+    _training_threads(args.threads)
     config = config_from(args, GoalScoreConfig)
     for what, seconds in train_goal_scores(args.demos, args.out, tuple(args.cameras.split(",")), config).items():
         print(f"trained {what} in {seconds:.0f} s")

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
 
 from policy_composer.data.atomic import replacing_folder
+from policy_composer.learning.training import is_main_process, processes, wait_for_everyone
 
 if TYPE_CHECKING:  # torch is imported where a model is saved or built, so that the command line starts fast
     from torch import nn
@@ -30,16 +31,19 @@ class CheckpointError(ValueError):
 
 def save_checkpoint(model: nn.Module, config, out: str | Path, log: dict | None = None,
                     trained_with: dict[str, str] | None = None) -> Path:
-    """Write the model to `out` as a whole; `trained_with` names (by `weights_id`) the models it was trained with."""
+    """Write the model to `out` as a whole; `trained_with` names (by `weights_id`) the models it was trained with.
+    Trained data-parallel, the first process writes it and the others wait until it is there."""
     from safetensors.torch import save_file
 
     out = Path(out)
-    with replacing_folder(out) as tmp:
-        save_file({k: v.contiguous() for k, v in model.state_dict().items()}, str(tmp / "model.safetensors"))
-        meta = {"kind": type(config).__name__, "trained_with": trained_with or {}}
-        (tmp / "config.json").write_text(json.dumps({**meta, **asdict(config)}, indent=1))
-        if log is not None:
-            (tmp / "train_log.json").write_text(json.dumps(log, indent=1))
+    if is_main_process():
+        with replacing_folder(out) as tmp:
+            save_file({k: v.contiguous() for k, v in model.state_dict().items()}, str(tmp / "model.safetensors"))
+            meta = {"kind": type(config).__name__, "trained_with": trained_with or {}}
+            (tmp / "config.json").write_text(json.dumps({**meta, **asdict(config)}, indent=1))
+            if log is not None:
+                (tmp / "train_log.json").write_text(json.dumps({**log, "processes": processes()}, indent=1))
+    wait_for_everyone()
     return out
 
 

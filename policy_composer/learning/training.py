@@ -1,12 +1,59 @@
 """The minibatch loop every model of the project trains with: shuffled batches, one Adam-style step each,
-the frame-weighted mean loss per epoch on a progress bar."""
+the frame-weighted mean loss per epoch on a progress bar.
+
+Started by `accelerate launch --multi_gpu --num_processes N` (torchrun under Accelerate; on a CPU-only machine
+it starts N CPU processes), the same loop trains data-parallel, as `lerobot-train` does: every process holds the
+whole model and dataset, takes its share of each batch, and the processes sum their share-weighted gradients
+before the step, so each step is the one-process step on the whole batch and the models stay identical. Only the
+first process writes files.
+"""
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 
 import torch
 from torch import nn
+
+
+def data_parallel():
+    """Accelerate's state of the training processes a launcher started, or None when training runs as one."""
+    if int(os.environ.get("WORLD_SIZE", "1")) <= 1:
+        return None
+    from accelerate import PartialState
+
+    return PartialState(cpu=True)  # the models train on the CPU: gloo
+
+
+def processes() -> int:
+    """How many processes train together (1 without a launcher)."""
+    return max(1, int(os.environ.get("WORLD_SIZE", "1")))
+
+
+def threads_per_process(threads: int) -> int:
+    """Torch threads for each training process: `threads` shared among the data-parallel processes."""
+    return max(1, threads // processes())
+
+
+def is_main_process() -> bool:
+    state = data_parallel()
+    return state is None or state.is_main_process
+
+
+def wait_for_everyone() -> None:
+    state = data_parallel()
+    if state is not None:
+        state.wait_for_everyone()
+
+
+def _sum_gradients(params: list[nn.Parameter]) -> None:
+    """Sum the processes' gradients (each already weighted by its share of the batch) in one all-reduce."""
+    grads = [p.grad if p.grad is not None else torch.zeros_like(p) for p in params]
+    flat = torch.cat([g.reshape(-1) for g in grads])
+    torch.distributed.all_reduce(flat)
+    for p, g in zip(params, flat.split([g.numel() for g in grads])):
+        p.grad = g.view_as(p).clone()
 
 
 def fit_epochs(model: nn.Module, optimizer: torch.optim.Optimizer, n: int, batch_size: int, epochs: int,
@@ -16,19 +63,33 @@ def fit_epochs(model: nn.Module, optimizer: torch.optim.Optimizer, n: int, batch
     per-epoch mean loss and leaves the model in eval mode."""
     from tqdm import tqdm
 
+    state = data_parallel()
+    rank, world = (state.process_index, state.num_processes) if state is not None else (0, 1)
+    params = [p for p in model.parameters() if p.requires_grad]
     losses = []
-    bar = tqdm(range(epochs), desc=desc, unit="epoch", disable=not progress)
+    bar = tqdm(range(epochs), desc=desc, unit="epoch", disable=not progress or rank != 0)
     for _ in bar:
         model.train()
         total = 0.0
-        for idx in torch.randperm(n, generator=generator).split(batch_size):
-            loss = loss_fn(idx)
+        order = torch.randperm(n, generator=generator)
+        if world > 1:  # the first process's order: the others' generators part ways in their own augmentations
+            torch.distributed.broadcast(order, 0)
+        for idx in order.split(batch_size):
+            mine = idx[rank::world]
             optimizer.zero_grad()
-            loss.backward()
+            if len(mine):
+                loss = loss_fn(mine)
+                (loss * (len(mine) / len(idx))).backward()
+                total += loss.item() * len(mine)
+            if world > 1:
+                _sum_gradients(params)
             optimizer.step()
-            total += loss.item() * len(idx)
         if schedule is not None:
             schedule.step()
+        if world > 1:
+            summed = torch.tensor([total], dtype=torch.float64)
+            torch.distributed.all_reduce(summed)
+            total = summed.item()
         losses.append(total / n)
         bar.set_postfix({postfix: f"{losses[-1]:.{digits}f}"})
     model.eval()
