@@ -1,6 +1,6 @@
 """Each episode loop on one process and on several: wall time, speed-up, and whether the results are the same.
 
-Run: python benchmarks/workers_speed.py [--workers 2] [--episodes 6] [--resolution 64] [--models DIR --dmp DIR
+Run: python benchmarks/workers_speed.py [--workers 2] [--episodes 12] [--resolution 64] [--models DIR --dmp DIR
      --cnn DIR]
 
 The loops need no trained model except composing: recording (the expert's insertion demonstrations), the
@@ -60,7 +60,7 @@ def compose(models: str, dmp: str, cnn: str, episodes: int, resolution: int, wor
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--episodes", type=int, default=6, help="per loop (per controller for the rollouts)")
+    parser.add_argument("--episodes", type=int, default=12, help="per loop (per controller for the rollouts)")
     parser.add_argument("--resolution", type=int, default=64)
     parser.add_argument("--models", default=None, help="a world-model folder: also time composing")
     parser.add_argument("--dmp", default=None)

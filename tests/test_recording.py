@@ -325,7 +325,9 @@ def test_interrupted_recording_keeps_finished_episodes_and_resumes(insertion_dem
     # Every finished episode loads with plain LeRobotDataset (after rolling back a save cut short, if any).
     ds = open_dataset(root)
     kept = ds.num_episodes
-    assert kept == 1 and ds.num_frames == sum(json.loads((root / "meta/policy_composer.json").read_text())[
+    # One worker stops after the first episode; with two, the second may have finished meanwhile and been saved.
+    assert kept == 1 or (workers > 1 and kept == 2)
+    assert ds.num_frames == sum(json.loads((root / "meta/policy_composer.json").read_text())[
         "episodes"][i]["length"] for i in range(kept))
     subprocess.run(_record_cmd(root, 2, "--resume", "--workers", str(workers)), env=env, check=True,
                    capture_output=True)

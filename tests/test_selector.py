@@ -118,7 +118,7 @@ def test_a_checkpoint_is_replaced_whole_or_not_at_all(world, tmp_path):
         save_checkpoint(model, model.config, folder, log={"not json": object()})
     assert tree_digest(folder) == before and sorted(p.name for p in tmp_path.iterdir()) == ["mp_pick"]
     save_checkpoint(model, model.config, folder, log={"epochs": 1})
-    assert json.loads((folder / "train_log.json").read_text()) == {"epochs": 1}
+    assert json.loads((folder / "train_log.json").read_text()) == {"epochs": 1, "processes": 1}
 
 
 def test_a_composed_run_continues_only_with_its_own_settings(tmp_path):
