@@ -4,7 +4,8 @@ Run: python benchmarks/selector_speed.py [--decisions 20] [--frames 512]
 Latency: one decision over the library's controllers (all applicable: the worst case) at n = 10 and K = 16,
 batched and one controller at a time, against the reference of encoding one camera image with the VAE in the
 same process; then what the futures' decoding and scoring alone takes, and the scaling with the number of
-applicable controllers and with a batch of states. Training: seconds
+applicable controllers and with a batch of states; then the same with the goal score of the latent
+(`compose --goal-score latent`), which scores the futures without decoding them. Training: seconds
 per epoch over `--frames` random frames for each model at its default configuration, and the time of a full
 default training run at the datasets' sizes (frames given on the command line). Models are randomly
 initialised: speed does not depend on the weights.
@@ -20,9 +21,9 @@ import torch
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
 from policy_composer.policies.library import all_names
-from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
+from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, LatentGoalScoreConfig, VAEConfig
 from policy_composer.selector.dynamics import LatentDynamics
-from policy_composer.selector.goal_score import GoalScoreModel
+from policy_composer.selector.goal_score import GoalScoreModel, LatentGoalScoreModel
 from policy_composer.selector.vae import VAE
 from policy_composer.selector.world_model import GearWorldModel
 
@@ -58,13 +59,15 @@ def main() -> None:
     names = all_names()
     dynamics = {n: LatentDynamics(DynamicsConfig(controller=n)).eval() for n in names}
     world = GearWorldModel(vae, dynamics, GoalScoreModel(goal_config).eval())
+    latent_goal = LatentGoalScoreModel(LatentGoalScoreConfig(latent_dim=vae_config.latent_dim)).eval()
+    latent_world = GearWorldModel(vae, dynamics, latent_goal)
     obs = {"sensor_data": {world.camera: {"rgb": torch.randint(0, 255, (1, 128, 128, 3), dtype=torch.uint8)}}}
     encode = timed(lambda: world.encode(obs), args.decisions)
     W, K = len(names), 16
     print(f"reference: encode one 128x128 image with the VAE: {encode * 1000:.1f} ms")
 
-    def decision(batched: bool, applicable: int = W, states: int = 1) -> float:
-        selector = world.selector(horizon=10, samples=K, seed=0, batched=batched)
+    def decision(batched: bool, applicable: int = W, states: int = 1, model: GearWorldModel = world) -> float:
+        selector = model.selector(horizon=10, samples=K, seed=0, batched=batched)
         mask = torch.zeros(states, W, dtype=torch.bool)
         mask[:, :applicable] = True
         z = world.encode(obs).expand(states, -1)
@@ -84,6 +87,15 @@ def main() -> None:
         f"{w}: {decision(True, w) * 1000:.0f} ms" for w in (1, 3, 5, W)))
     print("  by a batch of states (all applicable): " + ", ".join(
         f"{b}: {(t := decision(True, W, b)) * 1000:.0f} ms ({t / b * 1000:.0f} ms a state)" for b in (1, 2, 4)))
+    latent = decision(True, model=latent_world)
+    print(f"selector decision with the latent goal score, {W} controllers applicable, n = 10, K = {K}: "
+          f"{latent * 1000:.1f} ms ({latent / encode:.2f}x the reference, {batched / latent:.0f}x faster than "
+          f"decoding); target 10 ms: {'met' if latent <= 0.010 else 'not met'}")
+    print("  by applicable controllers: " + ", ".join(
+        f"{w}: {decision(True, w, model=latent_world) * 1000:.1f} ms" for w in (1, 3, 5, W)))
+    print("  by a batch of states (all applicable): " + ", ".join(
+        f"{b}: {(t := decision(True, W, b, latent_world)) * 1000:.1f} ms ({t / b * 1000:.1f} ms a state)"
+        for b in (1, 4, 16, 64)))
 
     size = vae_config.image_size
     images = torch.rand(max(vae_config.batch_size, goal_config.batch_size, 120), 3, size, size)
@@ -101,7 +113,7 @@ def main() -> None:
     cnn = CNNPolicy(CNNPolicyConfig())
     dyn = LatentDynamics(dyn_config)
     goal = GoalScoreModel(goal_config)
-    z = torch.randn(dyn_config.batch_size, vae_config.latent_dim)
+    z = torch.randn(max(dyn_config.batch_size, LatentGoalScoreConfig().batch_size), vae_config.latent_dim)
     runs = {
         "VAE": (fit(vae.train(), lambda b: vae.loss(images[:b])[0]), vae_config.batch_size, vae_config.epochs,
                 args.rollout_frames),
@@ -110,6 +122,8 @@ def main() -> None:
                                             args.rollout_frames // len(all_names())),
         "goal score (one camera)": (fit(goal, lambda b: goal.loss(images[:b], torch.rand(b))), goal_config.batch_size,
                                     goal_config.epochs, 2 * args.demo_frames),
+        "latent goal score": (fit(latent_goal.train(), lambda b: latent_goal.loss(z[:b], torch.rand(b))),
+                              LatentGoalScoreConfig().batch_size, LatentGoalScoreConfig().epochs, args.demo_frames),
         "CNN policy": (fit(cnn, lambda b: cnn.loss(images[:b], torch.randn(b, cnn.config.state_dim),
                                                    torch.randn(b, cnn.config.action_dim))),
                        CNNPolicyConfig().batch_size, CNNPolicyConfig().epochs, args.insertion_frames),

@@ -58,12 +58,13 @@ class Composer:
 
     def __init__(self, models: str | Path, sources, config: ComposeConfig, resolution: int = 128,
                  clearance_mm: float = 2.0, knock_out_step: int | None = None, out: Path | None = None,
-                 video_seeds: tuple[int, ...] = (), world=None):
+                 video_seeds: tuple[int, ...] = (), world=None, goal_score: str = "image"):
         from policy_composer.policies.library import build_library, cameras_needed
         from policy_composer.selector.world_model import GearWorldModel
         from policy_composer.tasks.rollout import make_env
 
-        self.world = world if world is not None else GearWorldModel.load(models)  # given: loaded in this process
+        # given: loaded in this process
+        self.world = world if world is not None else GearWorldModel.load(models, goal_score=goal_score)
         names = list(self.world.dynamics)
         cameras = tuple(dict.fromkeys((self.world.camera, *cameras_needed(names, sources))))
         self.env = make_env("rgb", resolution, clearance_mm, cameras, knock_out_step=knock_out_step)
@@ -85,8 +86,10 @@ class Composer:
 
 def compose_library(models: str | Path, sources, config: ComposeConfig, seeds: list[int], out: Path, videos: int = 1,
                     resolution: int = 128, clearance_mm: float = 2.0, knock_out_step: int | None = None,
-                    resume: bool = False, progress: bool = True, workers: int = 1) -> list[ComposedEpisode]:
-    """Load the world model in `models`, build every controller it has a dynamics model of from `sources`
+                    resume: bool = False, progress: bool = True, workers: int = 1,
+                    goal_score: str = "image") -> list[ComposedEpisode]:
+    """Load the world model in `models` with its `goal_score` ("image" or "latent", see GearWorldModel.load), build
+    every controller it has a dynamics model of from `sources`
     (a `LibrarySources`), and compose on each seed (spread over `workers` processes); writes episodes.jsonl
     (decision logs), summary.md and the videos of the first `videos` seeds. With `resume`, the episodes already
     in episodes.jsonl are kept and their seeds not run again."""
@@ -100,11 +103,12 @@ def compose_library(models: str | Path, sources, config: ComposeConfig, seeds: l
     out = Path(out)
     check_out(out, resume)  # first: a finished run in `out` is refused before anything loads
     torch.set_num_threads(1)
-    world = GearWorldModel.load(models)
+    world = GearWorldModel.load(models, goal_score=goal_score)
     ids = model_ids(list(world.dynamics), sources)
     world.check_controllers(ids)
     settings = {"models": str(Path(models).resolve()), "controller_models": ids, "config": asdict(config),
-                "resolution": resolution, "clearance_mm": clearance_mm, "knock_out_step": knock_out_step}
+                "resolution": resolution, "clearance_mm": clearance_mm, "knock_out_step": knock_out_step,
+                **({"goal_score": goal_score} if goal_score != "image" else {})}  # earlier runs' settings stay valid
     check_out(out, resume, settings)  # and a resumed one continues with its own settings
     out.mkdir(parents=True, exist_ok=True)
     if not (out / "run.json").is_file():
@@ -115,7 +119,7 @@ def compose_library(models: str | Path, sources, config: ComposeConfig, seeds: l
         atomic.write_text(path, "".join(json.dumps(e.to_dict()) + "\n" for e in kept.values()))
     todo = [s for s in seeds if s not in kept]
     setup = partial(Composer, models, sources, config, resolution, clearance_mm, knock_out_step, out,
-                    tuple(seeds[:videos]), world=world if in_process(todo, workers) else None)
+                    tuple(seeds[:videos]), world=world if in_process(todo, workers) else None, goal_score=goal_score)
     with open(path, "a" if resume else "w") as log, \
             tqdm(total=len(todo), desc="composed episodes", unit="episode", disable=not progress) as bar:
         def save(_seed: int, episode: ComposedEpisode) -> None:

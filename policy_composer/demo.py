@@ -128,7 +128,7 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
         Stage("world-model", "train the VAE, the dynamics models and the goal scorers",
               {"vae": asdict(vae), "dynamics": asdict(dynamics), "goal": asdict(goal), "cameras": CAMERAS},
               lambda out, i: _train_world(out, i, vae, dynamics, goal),
-              inputs=("controller-rollouts", "full-task-demos")),
+              inputs=("controller-rollouts", "full-task-demos"), resumable=True),
         Stage("goal-score", "evaluate the goal score of each camera on the held-out demonstrations",
               {"cameras": CAMERAS},
               lambda out, i: _evaluate_goal(out, i), inputs=("world-model", "full-task-demos")),
@@ -225,8 +225,8 @@ def _train_world(out: Path, inputs: dict[str, Path], vae, dynamics, goal) -> dic
 
     torch.set_num_threads(2)
     rollouts, demos = inputs["controller-rollouts"] / "dataset", inputs["full-task-demos"] / "dataset"
-    timings = train_world_model(rollouts, demos, out / "world", vae, dynamics)
-    timings.update(train_goal_scores(demos, out / "world", CAMERAS, goal))
+    timings = train_world_model(rollouts, demos, out / "world", vae, dynamics, resume=True)
+    timings.update(train_goal_scores(demos, out / "world", CAMERAS, goal, resume=True))
     return {"timings": timings}
 
 

@@ -163,7 +163,7 @@ def _composition(composed: list[ComposedEpisode], video: str | None, knock_video
 
 def _goal_score(record: StageRecord, figure: str | None) -> str:
     metrics = record.facts["metrics"]
-    ranked = sorted(metrics, key=lambda c: -metrics[c]["spearman"])
+    ranked = sorted((c for c in metrics if c != "latent"), key=lambda c: -metrics[c]["spearman"])
     forearm_best = ranked[0] != "head"
     lines = ["## Goal score per camera", ""]
     if figure:
@@ -175,6 +175,9 @@ def _goal_score(record: StageRecord, figure: str | None) -> str:
               f"The paper: \"{PAPER_CAMERAS}\". Ours " + ("agrees: a forearm camera ranks above the head camera."
                                                          if forearm_best else
                                                          "disagrees: the head camera ranks first here.")]
+    if "latent" in metrics:
+        lines += ["", "Row `latent` is the goal score of the VAE's latents of its camera's frames, which scores the "
+                      "selector's predictions without decoding them (`compose --goal-score latent`)."]
     return "\n".join(lines)
 
 

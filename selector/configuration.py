@@ -12,6 +12,8 @@ from dataclasses import dataclass
 from policy_composer.learning.config import BACKBONES, check_options, option
 from policy_composer.tasks.spec import CAMERA_NAMES
 
+GOAL_SCORES = ("image", "latent")  # what the selector's goal score reads: each prediction decoded, or the latent
+
 
 @dataclass
 class VAEConfig:
@@ -67,6 +69,24 @@ class GoalScoreConfig:
     weight_decay: float = 1e-6
     batch_size: int = 120
     epochs: int = option(60, "goal-score training epochs", minimum=1)
+    seed: int = 0
+
+    def __post_init__(self):
+        check_options(self)
+
+
+@dataclass
+class LatentGoalScoreConfig:
+    """G on the VAE's latent state (the paper's experiments: the goal score "operates on the latent space"): an MLP
+    with a mixture density head, so the selector scores its predicted latents without decoding them to images."""
+
+    latent_dim: int = 32  # the VAE's
+    hidden_dim: int = 256
+    num_mixtures: int = option(24, "Gaussian mixture components (paper: 24)", minimum=1)
+    lr: float = 1e-3
+    weight_decay: float = 1e-6
+    batch_size: int = 120
+    epochs: int = option(300, "latent goal-score training epochs (an epoch is a few batches)", minimum=1)
     seed: int = 0
 
     def __post_init__(self):

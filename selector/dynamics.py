@@ -75,13 +75,22 @@ class StackedDynamics(nn.Module):
         if not self.stackable(models):
             raise ValueError("stacked dynamics models must share one shape (latent, hidden, mixtures)")
         self.L, self.K = models[0].config.latent_dim, models[0].config.num_mixtures
-        layers = [m.trunk[0] for m in models], [m.trunk[2] for m in models], \
-            [m.head.logits for m in models], [m.head.means for m in models], [m.head.log_stds for m in models]
-        for name, stack in zip(("fc1", "fc2", "logits", "means", "log_stds"), layers):
-            self.register_buffer(f"{name}_w", torch.stack([lin.weight.T for lin in stack]))  # (W, in, out)
-            self.register_buffer(f"{name}_b", torch.stack([lin.bias[None] for lin in stack]))  # (W, 1, out)
-        for name in ("z_mean", "z_std", "delta_mean", "delta_std"):
-            self.register_buffer(name, torch.stack([getattr(m, name)[None] for m in models]))  # (W, 1, L)
+        # Each layer as (W, in, out) weights and (W, 1, out) biases. The head's three layers read the same features,
+        # so one matrix product makes all three outputs.
+        layers = {"fc1": [[m.trunk[0]] for m in models], "fc2": [[m.trunk[2]] for m in models],
+                  "head": [[m.head.logits, m.head.means, m.head.log_stds] for m in models]}
+        for name, per_model in layers.items():
+            self.register_buffer(f"{name}_w", torch.stack([torch.cat([lin.weight for lin in ls]).T
+                                                           for ls in per_model]).detach())
+            self.register_buffer(f"{name}_b", torch.stack([torch.cat([lin.bias for lin in ls])[None]
+                                                           for ls in per_model]).detach())
+        stats = {name: torch.stack([getattr(m, name)[None] for m in models]) for name in  # (W, 1, L)
+                 ("z_mean", "z_std", "delta_mean", "delta_std")}
+        # The input's normalisation is linear too: it folds into the first layer.
+        self.fc1_b = self.fc1_b - (stats["z_mean"] / stats["z_std"]) @ self.fc1_w
+        self.fc1_w = self.fc1_w / stats["z_std"].transpose(1, 2)
+        self.register_buffer("delta_mean", stats["delta_mean"])
+        self.register_buffer("delta_std", stats["delta_std"])
         self.min_log_std = models[0].head.min_log_std
 
     def select(self, index: torch.Tensor) -> StackedDynamics:
@@ -98,11 +107,12 @@ class StackedDynamics(nn.Module):
     def step(self, z: torch.Tensor, draws: tuple[torch.Tensor, torch.Tensor]) -> torch.Tensor:
         """(W, M, L) latents, model w stepping row w -> (W, M, L); draws (W, M) and (W, M, L)."""
         W, M, _ = z.shape
-        h = torch.relu(torch.baddbmm(self.fc1_b, (z - self.z_mean) / self.z_std, self.fc1_w))
+        h = torch.relu(torch.baddbmm(self.fc1_b, z, self.fc1_w))
         h = torch.relu(torch.baddbmm(self.fc2_b, h, self.fc2_w))
-        log_pi = torch.log_softmax(torch.baddbmm(self.logits_b, h, self.logits_w), dim=-1)
-        mu = torch.baddbmm(self.means_b, h, self.means_w).view(W, M, self.K, self.L)
-        log_std = torch.baddbmm(self.log_stds_b, h, self.log_stds_w).view(W, M, self.K, self.L)
+        logits, mu, log_std = torch.baddbmm(self.head_b, h, self.head_w).split(
+            [self.K, self.K * self.L, self.K * self.L], dim=-1)
+        log_pi = torch.log_softmax(logits, dim=-1)
+        mu, log_std = mu.reshape(W, M, self.K, self.L), log_std.reshape(W, M, self.K, self.L)
         delta = MixtureDensityHead.sample(log_pi, mu, log_std.clamp(self.min_log_std, 3.0), draws=draws)
         return z + delta * self.delta_std + self.delta_mean
 

@@ -1,6 +1,7 @@
 """`policy-composer evaluate goal-score`: each camera's goal scorer on held-out full-task demonstrations
-(the paper's figure comparing head and forearm cameras), as curves with the subtask boundaries marked and as
-a table of rank correlation with true progress and mean absolute error."""
+(the paper's figure comparing head and forearm cameras), and the goal scorer of the VAE's latents if the world
+model has one, as curves with the subtask boundaries marked and as a table of rank correlation with true progress
+and mean absolute error."""
 
 from __future__ import annotations
 
@@ -12,15 +13,19 @@ import torch
 from policy_composer.data import atomic
 from policy_composer.data.features import image_key
 from policy_composer.data.frames import episode_bounds, load_frames
-from policy_composer.selector.goal_score import goal_score_metrics, load_goal_score
-from policy_composer.selector.train import demo_split
+from policy_composer.learning.checkpoint import trained_with
+from policy_composer.selector.goal_score import TRAIN_HINT, goal_score_metrics, load_goal_score, load_latent_goal_score
+from policy_composer.selector.train import demo_split, posteriors
+from policy_composer.selector.vae import load_vae
+from policy_composer.selector.world_model import check_trained_together
 
 STAGES = ("pick", "move", "insert", "done")
 
 
 def evaluate_goal_scores(models: str | Path, demos: str | Path, out: str | Path, cameras: tuple[str, ...],
                          progress: bool = True) -> dict[str, dict]:
-    """Score the held-out demos with each camera's model; write goal_score.{png,csv,md} to `out`."""
+    """Score the held-out demos with each camera's model (and the latent one: row "latent"); write
+    goal_score.{png,csv,md} to `out`."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     scorers = {c: load_goal_score(Path(models) / "goal_score" / c) for c in cameras}
@@ -30,6 +35,14 @@ def evaluate_goal_scores(models: str | Path, demos: str | Path, out: str | Path,
     for camera, model in scorers.items():
         curves[camera] = model.scores(frames[image_key(camera)])
         metrics[camera] = goal_score_metrics(curves[camera], frames["progress"], frames["episode_index"])
+    latent = Path(models) / "goal_score" / "latent"
+    if (latent / "config.json").is_file():
+        check_trained_together(Path(models) / "vae", {latent: trained_with(latent, "latent goal score", TRAIN_HINT)})
+        vae = load_vae(Path(models) / "vae")
+        if vae.config.camera in cameras:  # the latents of the VAE's camera's frames
+            curves["latent"] = load_latent_goal_score(latent).expected(
+                posteriors(vae, frames[image_key(vae.config.camera)])[0])
+            metrics["latent"] = goal_score_metrics(curves["latent"], frames["progress"], frames["episode_index"])
     _plot(curves, frames, out / "goal_score.png")
     with atomic.replacing(out / "goal_score.csv") as tmp, open(tmp, "w", newline="") as f:
         w = csv.writer(f)
@@ -63,7 +76,7 @@ def _plot(curves: dict[str, torch.Tensor], frames: dict[str, torch.Tensor], path
             for j in (stage[1:] != stage[:-1]).nonzero().flatten().tolist():
                 ax.axvline(j + 1, color=color, lw=0.6, alpha=0.5)
                 ax.text(j + 1, 1.02, STAGES[int(stage[j + 1])], rotation=90, fontsize=6, va="bottom", color=color)
-        ax.set_title(camera, pad=22)
+        ax.set_title(camera if camera != "latent" else "latent (the VAE's camera)", pad=22)
         ax.set_xlabel("control step")
         ax.set_ylim(-0.05, 1.05)
     axes[0][0].set_ylabel("goal score (solid), true progress (dashed)")

@@ -1,10 +1,11 @@
-"""The goal score G (paper: Goal Score Evaluation): a CNN with a mixture density head estimating task progress
-from one camera's image, trained on full-task demonstrations with target frame index / (T - 1).
+"""The goal score G (paper: Goal Score Evaluation): a mixture density head estimating task progress, trained on
+full-task demonstrations with target frame index / (T - 1).
 
-One model per camera; `evaluate_goal_score` compares them on held-out demonstrations. The selector scores
-predicted latents by decoding them with the VAE and running the scorer of the VAE's camera on the decoded
-images; that scorer also trains on the VAE's reconstructions of its demonstrations, so it scores blurry
-decoded images as it scores real ones.
+`GoalScoreModel` reads one camera's image (a CNN): one model per camera, compared by `evaluate_goal_score` on
+held-out demonstrations. The selector scores predicted latents by decoding them with the VAE and running the
+scorer of the VAE's camera on the decoded images; that scorer also trains on the VAE's reconstructions of its
+demonstrations, so it scores blurry decoded images as it scores real ones. `LatentGoalScoreModel` reads the VAE's
+latent itself (an MLP): it skips the decoding and the CNN, which are nearly all of a decision's time.
 """
 
 from __future__ import annotations
@@ -20,14 +21,23 @@ from policy_composer.data.frames import episode_bounds, random_shift, to_model_i
 from policy_composer.learning.checkpoint import load_checkpoint, save_checkpoint
 from policy_composer.learning.layers import MixtureDensityHead, image_encoder
 from policy_composer.learning.training import fit_epochs
-from policy_composer.selector.configuration import GoalScoreConfig
+from policy_composer.selector.configuration import GoalScoreConfig, LatentGoalScoreConfig
 
 TRAIN_HINT = "policy-composer train goal-score"
+SCALE = 4.0  # the heads model progress as (progress - 0.5) * SCALE: unit-scale targets train much faster
+
+
+def progress_nll(params, progress: torch.Tensor) -> torch.Tensor:
+    return MixtureDensityHead.nll(*params, (progress[:, None] - 0.5) * SCALE)
+
+
+def expected_progress(params) -> torch.Tensor:
+    """E[progress] of a mixture over scaled progress, clipped to [0, 1]."""
+    log_pi, mu, _ = params
+    return ((log_pi.exp() * mu[..., 0]).sum(-1) / SCALE + 0.5).clamp(0.0, 1.0)
 
 
 class GoalScoreModel(nn.Module):
-    SCALE = 4.0  # the head models progress as (progress - 0.5) * SCALE: unit-scale targets train much faster
-
     def __init__(self, config: GoalScoreConfig):
         super().__init__()
         self.config = config
@@ -39,19 +49,41 @@ class GoalScoreModel(nn.Module):
         return self.head(self.trunk(self.encoder(images)))
 
     def loss(self, images: torch.Tensor, progress: torch.Tensor) -> torch.Tensor:
-        return self.head.nll(*self(images), (progress[:, None] - 0.5) * self.SCALE)
+        return progress_nll(self(images), progress)
 
     @torch.no_grad()
     def expected(self, images: torch.Tensor) -> torch.Tensor:
         """E[progress | image], clipped to [0, 1]: images (B, 3, S, S) in [0, 1] (resized if need be)."""
-        images = to_model_image(images, self.config.image_size)
-        log_pi, mu, _ = self(images)
-        return ((log_pi.exp() * mu[..., 0]).sum(-1) / self.SCALE + 0.5).clamp(0.0, 1.0)
+        return expected_progress(self(to_model_image(images, self.config.image_size)))
 
     @torch.no_grad()
     def scores(self, images_uint8: torch.Tensor, batch: int = 256) -> torch.Tensor:
         return torch.cat([self.expected(images_uint8[i:i + batch].float() / 255.0)
                           for i in range(0, len(images_uint8), batch)])
+
+
+class LatentGoalScoreModel(nn.Module):
+    """G of a latent state (B, L) of the VAE it was trained with. Normalisation statistics live in buffers."""
+
+    def __init__(self, config: LatentGoalScoreConfig):
+        super().__init__()
+        self.config = config
+        L, H = config.latent_dim, config.hidden_dim
+        self.trunk = nn.Sequential(nn.Linear(L, H), nn.ReLU(), nn.Linear(H, H), nn.ReLU())
+        self.head = MixtureDensityHead(H, 1, config.num_mixtures)
+        self.register_buffer("z_mean", torch.zeros(L))
+        self.register_buffer("z_std", torch.ones(L))
+
+    def forward(self, z: torch.Tensor):
+        return self.head(self.trunk((z - self.z_mean) / self.z_std))
+
+    def loss(self, z: torch.Tensor, progress: torch.Tensor) -> torch.Tensor:
+        return progress_nll(self(z), progress)
+
+    @torch.no_grad()
+    def expected(self, z: torch.Tensor) -> torch.Tensor:
+        """E[progress | latent], clipped to [0, 1]."""
+        return expected_progress(self(z))
 
 
 def train_goal_score(images: torch.Tensor, progress: torch.Tensor, config: GoalScoreConfig,
@@ -76,8 +108,38 @@ def train_goal_score(images: torch.Tensor, progress: torch.Tensor, config: GoalS
     return model, losses
 
 
+def train_latent_goal_score(mean: torch.Tensor, logvar: torch.Tensor, progress: torch.Tensor,
+                            config: LatentGoalScoreConfig, out: str | Path | None = None, progress_bar: bool = True,
+                            trained_with: dict[str, str] | None = None) -> tuple[LatentGoalScoreModel, list[float]]:
+    """Fit G to the VAE posteriors (mean, log-variance, (N, L) each) of demonstration frames. Each batch samples its
+    latents from the posteriors, as the random shift augments the images: the predicted latents it will score are
+    near, not at, the posterior means."""
+    t0 = time.perf_counter()
+    if progress.min() < 0:
+        raise ValueError("progress labels must be in [0, 1]: train the goal score on successful demonstrations only")
+    torch.manual_seed(config.seed)
+    model = LatentGoalScoreModel(config)
+    model.z_mean.copy_(mean.mean(0))
+    model.z_std.copy_(mean.std(0).clamp_min(1e-3))
+    opt = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    gen = torch.Generator().manual_seed(config.seed)
+    std = (0.5 * logvar).exp()
+    losses = fit_epochs(model, opt, len(mean), config.batch_size, config.epochs,
+                        lambda idx: model.loss(mean[idx] + std[idx] * torch.randn(std[idx].shape, generator=gen),
+                                               progress[idx].float()),
+                        gen, "training goal score (latent)", progress_bar, postfix="nll")
+    if out is not None:
+        log = {"frames": len(mean), "losses": losses, "seconds": round(time.perf_counter() - t0, 1)}
+        save_checkpoint(model, config, out, log, trained_with)
+    return model, losses
+
+
 def load_goal_score(path: str | Path) -> GoalScoreModel:
     return load_checkpoint(path, GoalScoreConfig, GoalScoreModel, "goal score", TRAIN_HINT)
+
+
+def load_latent_goal_score(path: str | Path) -> LatentGoalScoreModel:
+    return load_checkpoint(path, LatentGoalScoreConfig, LatentGoalScoreModel, "latent goal score", TRAIN_HINT)
 
 
 def goal_score_metrics(scores: torch.Tensor, progress: torch.Tensor, episode_index: torch.Tensor) -> dict:

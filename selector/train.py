@@ -2,7 +2,8 @@
 
 - the VAE on the VAE camera's frames of the controller rollouts and the training full-task demos;
 - one dynamics model per controller, on that controller's rollout frames only;
-- one goal scorer per camera on the training full-task demos (the VAE camera's also on their reconstructions).
+- one goal scorer per camera on the training full-task demos (the VAE camera's also on their reconstructions),
+  and one on the VAE's latents of those demos.
 """
 
 from __future__ import annotations
@@ -14,12 +15,12 @@ from pathlib import Path
 import torch
 
 from policy_composer.data.features import DatasetError, image_key, read_sidecar
-from policy_composer.data.frames import load_frames
+from policy_composer.data.frames import load_frames, to_model_image
 from policy_composer.data.recipes import check_recipe
-from policy_composer.learning.checkpoint import weights_id
-from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
+from policy_composer.learning.checkpoint import finished, weights_id
+from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, LatentGoalScoreConfig, VAEConfig
 from policy_composer.selector.dynamics import train_dynamics
-from policy_composer.selector.goal_score import train_goal_score
+from policy_composer.selector.goal_score import train_goal_score, train_latent_goal_score
 from policy_composer.selector.vae import VAE, load_vae, train_vae
 
 
@@ -38,11 +39,14 @@ def demo_split(root: str | Path, split: str) -> list[int]:
 
 def train_world_model(rollouts: str | Path, demos: str | Path, out: str | Path, vae_config: VAEConfig | None = None,
                       dynamics_config: DynamicsConfig | None = None, controllers: list[str] | None = None,
-                      reuse_vae: bool = False, progress: bool = True) -> dict[str, float]:
+                      reuse_vae: bool = False, progress: bool = True, resume: bool = False) -> dict[str, float]:
     """VAE, then every controller's dynamics model; returns the training time of each (s). With `reuse_vae`,
-    the VAE already in `out` is kept (to add or retrain some controllers' dynamics models)."""
+    the VAE already in `out` is kept (to add or retrain some controllers' dynamics models). With `resume`, every
+    model already in `out` at its configuration (and with its VAE) is kept: a training cut short goes on where it
+    stopped."""
     out = Path(out)
-    vae = load_vae(out / "vae") if reuse_vae else None
+    kept = resume and vae_config is not None and finished(out / "vae", vae_config)
+    vae = load_vae(out / "vae") if reuse_vae or kept else None
     vae_config = vae.config if vae is not None else vae_config or VAEConfig()  # a kept VAE keeps its camera
     dynamics_config = dynamics_config or DynamicsConfig()
     camera, size = vae_config.camera, vae_config.image_size
@@ -56,6 +60,8 @@ def train_world_model(rollouts: str | Path, demos: str | Path, out: str | Path, 
         vae, _ = train_vae(torch.cat([ro[image_key(camera)], demo[image_key(camera)]]), vae_config, out / "vae",
                            progress)
         timings["vae"] = time.perf_counter() - t0
+    elif kept:
+        timings["vae"] = kept["seconds"]
     sidecar = read_sidecar(rollouts)
     names, models = sidecar["controllers"], sidecar.get("controller_models", {})
     vae_id = weights_id(out / "vae")
@@ -65,8 +71,11 @@ def train_world_model(rollouts: str | Path, demos: str | Path, out: str | Path, 
             continue
         rows = (ro["controller"] == index).nonzero().flatten()
         config = replace(dynamics_config, controller=name, latent_dim=vae_config.latent_dim)
-        t0 = time.perf_counter()
         parts = {"vae": vae_id, **({"controller": models[name]} if name in models else {})}
+        if resume and (log := finished(out / "dynamics" / name, config, parts)):
+            timings[f"dynamics {name}"] = log["seconds"]
+            continue
+        t0 = time.perf_counter()
         train_dynamics(latents[rows], ro[image_key(camera)][rows], ro["episode_index"][rows], config, vae,
                        out / "dynamics" / name, progress, parts)
         timings[f"dynamics {name}"] = time.perf_counter() - t0
@@ -74,9 +83,12 @@ def train_world_model(rollouts: str | Path, demos: str | Path, out: str | Path, 
 
 
 def train_goal_scores(demos: str | Path, out: str | Path, cameras: tuple[str, ...],
-                      config: GoalScoreConfig | None = None, progress: bool = True) -> dict[str, float]:
+                      config: GoalScoreConfig | None = None, progress: bool = True,
+                      resume: bool = False) -> dict[str, float]:
     """One goal scorer per camera on the training demos; returns the training time of each (s). The VAE in
-    `out/vae`, if there is one, adds its reconstructions to its own camera's training images."""
+    `out/vae`, if there is one, adds its reconstructions to its own camera's training images, and a goal scorer of
+    its latents is trained too (`goal_score/latent`). With `resume`, a goal scorer already in `out` at its
+    configuration is kept."""
     out = Path(out)
     config = config or GoalScoreConfig()
     check_recipe(demos, "gear-full-task-demos", "the goal score")
@@ -86,23 +98,45 @@ def train_goal_scores(demos: str | Path, out: str | Path, cameras: tuple[str, ..
     timings = {}
     for camera in cameras:
         images, target, parts = frames[image_key(camera)], frames["progress"], {}
-        if vae is not None and vae.config.camera == camera:
+        with_vae = vae is not None and vae.config.camera == camera
+        parts = {"vae": weights_id(out / "vae")} if with_vae else {}
+        path, camera_config = out / "goal_score" / camera, replace(config, camera=camera)
+        if resume and (log := finished(path, camera_config, parts)):
+            timings[f"goal score {camera}"] = log["seconds"]
+            continue
+        if with_vae:
             images, target = torch.cat([images, reconstructions(vae, images)]), torch.cat([target, target])
-            parts = {"vae": weights_id(out / "vae")}
         t0 = time.perf_counter()
-        train_goal_score(images, target, replace(config, camera=camera), out / "goal_score" / camera, progress,
-                         parts)
+        train_goal_score(images, target, camera_config, path, progress, parts)
         timings[f"goal score {camera}"] = time.perf_counter() - t0
+    if vae is None:
+        return timings
+    path, parts = out / "goal_score" / "latent", {"vae": weights_id(out / "vae")}
+    latent_config = LatentGoalScoreConfig(latent_dim=vae.config.latent_dim, seed=config.seed)
+    if resume and (log := finished(path, latent_config, parts)):
+        timings["goal score latent"] = log["seconds"]
+        return timings
+    camera = vae.config.camera
+    images = frames[image_key(camera)] if camera in cameras else \
+        load_frames(demos, (camera,), vae.config.image_size, demo_split(demos, "train"), progress=progress)[
+            image_key(camera)]
+    t0 = time.perf_counter()
+    train_latent_goal_score(*posteriors(vae, images), frames["progress"], latent_config, path, progress, parts)
+    timings["goal score latent"] = time.perf_counter() - t0
     return timings
+
+
+@torch.no_grad()
+def posteriors(vae: VAE, images_uint8: torch.Tensor, batch: int = 256) -> tuple[torch.Tensor, torch.Tensor]:
+    """The VAE's q(z | image) of uint8 images at any size: means and log-variances, (N, L) each."""
+    parts = [vae.encode(to_model_image(images_uint8[i:i + batch].float() / 255.0, vae.config.image_size))
+             for i in range(0, len(images_uint8), batch)]
+    return torch.cat([m for m, _ in parts]), torch.cat([v for _, v in parts])
 
 
 @torch.no_grad()
 def reconstructions(vae: VAE, images_uint8: torch.Tensor, batch: int = 256) -> torch.Tensor:
     """The VAE's decoding of each image's posterior mean, uint8 at the images' size."""
-    from policy_composer.data.frames import to_model_image
-
-    parts = []
-    for i in range(0, len(images_uint8), batch):
-        z = vae.encode(to_model_image(images_uint8[i:i + batch].float() / 255.0, vae.config.image_size))[0]
-        parts.append((to_model_image(vae.decode(z), images_uint8.shape[-1]) * 255).round().to(torch.uint8))
-    return torch.cat(parts)
+    mean, _ = posteriors(vae, images_uint8, batch)
+    return torch.cat([(to_model_image(vae.decode(mean[i:i + batch]), images_uint8.shape[-1]) * 255).round().to(
+        torch.uint8) for i in range(0, len(mean), batch)])

@@ -3,7 +3,8 @@ and the goal score of decoded latents. Trained from recorded datasets, saved as 
 
     ROOT/vae/                  the VAE (config.json + model.safetensors)
     ROOT/dynamics/<controller> one latent dynamics model per controller
-    ROOT/goal_score/<camera>   one goal scorer per camera; the VAE's camera's scores the selector's predictions
+    ROOT/goal_score/<camera>   one goal scorer per camera; the VAE's camera's scores the selector's decoded predictions
+    ROOT/goal_score/latent     the goal scorer of the VAE's latents: scores the predictions without decoding them
 """
 
 from __future__ import annotations
@@ -15,8 +16,14 @@ import torch
 from policy_composer.data.frames import to_model_image
 from policy_composer.learning.checkpoint import CheckpointError, trained_with, weights_id
 from policy_composer.selector.batched import LatentSelector
+from policy_composer.selector.configuration import GOAL_SCORES
 from policy_composer.selector.dynamics import LatentDynamics, load_dynamics
-from policy_composer.selector.goal_score import GoalScoreModel, load_goal_score
+from policy_composer.selector.goal_score import (
+    GoalScoreModel,
+    LatentGoalScoreModel,
+    load_goal_score,
+    load_latent_goal_score,
+)
 from policy_composer.selector.vae import VAE, load_vae
 
 
@@ -33,10 +40,15 @@ def check_trained_together(vae: Path, made_with: dict[Path, dict[str, str]]) -> 
 class GearWorldModel:
     """Implements the selector's GoalScore on latents, and turns observations into latents."""
 
-    def __init__(self, vae: VAE, dynamics: dict[str, LatentDynamics], goal: GoalScoreModel,
+    def __init__(self, vae: VAE, dynamics: dict[str, LatentDynamics], goal: GoalScoreModel | LatentGoalScoreModel,
                  controller_models: dict[str, str] | None = None):
         camera = vae.config.camera
-        if goal.config.camera != camera:
+        self.latent_goal = isinstance(goal, LatentGoalScoreModel)
+        if self.latent_goal and goal.config.latent_dim != vae.config.latent_dim:
+            raise CheckpointError(f"the latent goal score reads {goal.config.latent_dim}-D latents, but the VAE's are "
+                                  f"{vae.config.latent_dim}-D; train it with this VAE (`policy-composer train "
+                                  f"goal-score`)")
+        if not self.latent_goal and goal.config.camera != camera:
             raise CheckpointError(f"the selector's goal score must read the VAE's camera ({camera!r}) to score decoded "
                                   f"predictions; got a goal score for {goal.config.camera!r}")
         skips = {m.config.frame_skip for m in dynamics.values()}
@@ -50,8 +62,11 @@ class GearWorldModel:
         self.frame_skip = skips.pop() if skips else 1
 
     @classmethod
-    def load(cls, root: str | Path, controllers: list[str] | None = None) -> GearWorldModel:
-        """Load the VAE, the goal score of its camera and the dynamics models of `controllers` (default: all)."""
+    def load(cls, root: str | Path, controllers: list[str] | None = None, goal_score: str = "image") -> GearWorldModel:
+        """Load the VAE, its goal score (`goal_score` "image": the one of its camera; "latent": the one of its
+        latents) and the dynamics models of `controllers` (default: all)."""
+        if goal_score not in GOAL_SCORES:
+            raise ValueError(f"goal_score must be one of {', '.join(GOAL_SCORES)}, not {goal_score!r}")
         root = Path(root)
         vae = load_vae(root / "vae")
         folder = root / "dynamics"
@@ -62,7 +77,7 @@ class GearWorldModel:
             raise CheckpointError(f"{root} has no dynamics model for {missing or 'any controller'} "
                                   f"(it has {available}); "
                                   f"record their rollouts and train them with `policy-composer train world-model`")
-        goal = root / "goal_score" / vae.config.camera
+        goal = root / "goal_score" / (vae.config.camera if goal_score == "image" else "latent")
         made_with = {folder / n: trained_with(folder / n, "dynamics model", "policy-composer train world-model")
                      for n in names}
         if (goal / "config.json").is_file():  # missing: load_goal_score says how to train it
@@ -70,7 +85,8 @@ class GearWorldModel:
         check_trained_together(root / "vae", made_with)
         dynamics = {n: load_dynamics(folder / n, vae.config.latent_dim) for n in names}
         models = {n: made_with[folder / n].get("controller") for n in names}
-        return cls(vae, dynamics, load_goal_score(goal), {n: m for n, m in models.items() if m})
+        goal_model = load_goal_score(goal) if goal_score == "image" else load_latent_goal_score(goal)
+        return cls(vae, dynamics, goal_model, {n: m for n, m in models.items() if m})
 
     def check_controllers(self, models: dict[str, str]) -> None:
         """Refuse controllers (their models by `weights_id`) other than those whose rollouts trained the dynamics
@@ -93,12 +109,14 @@ class GearWorldModel:
 
     @torch.no_grad()
     def score(self, states: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
-        """G of latent states: the goal score of their decoded images, (M, L) -> (M,)."""
-        return self.goal.expected(self.decoder(states))
+        """G of latent states, (M, L) -> (M,): of the latents, or of their decoded images."""
+        return self.goal.expected(states if self.latent_goal else self.decoder(states))
 
     @torch.no_grad()
     def score_observation(self, obs) -> float:
         """G of what the camera sees now (no decoding): for curves and videos."""
+        if self.latent_goal:
+            return float(self.goal.expected(self.encode(obs))[0])
         image = obs["sensor_data"][self.camera]["rgb"][:1].cpu()
         return float(self.goal.expected(to_model_image(image, self.goal.config.image_size))[0])
 

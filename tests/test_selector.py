@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from dataclasses import replace
 from pathlib import Path
+from unittest.mock import ANY
 
 import gymnasium as gym
 import pytest
@@ -25,6 +26,9 @@ from policy_composer.selector.train import train_goal_scores, train_world_model
 from policy_composer.selector.world_model import GearWorldModel
 
 SIZE = 32
+WORLD_CONFIGS = (VAEConfig(image_size=SIZE, latent_dim=8, epochs=8, batch_size=32),
+                 DynamicsConfig(hidden_dim=64, num_mixtures=2, epochs=15, batch_size=32))
+GOAL_CONFIG = GoalScoreConfig(image_size=SIZE, hidden_dim=64, num_mixtures=4, epochs=40, batch_size=16, shift=2)
 
 
 @pytest.fixture(scope="module")
@@ -32,11 +36,8 @@ def world(controller_rollouts, full_task_demos, tmp_path_factory):
     """Small models trained from the test datasets into a world-model folder, as `train world-model` and
     `train goal-score` do: (root, training times)."""
     root = tmp_path_factory.mktemp("world")
-    timings = train_world_model(
-        controller_rollouts, full_task_demos, root, VAEConfig(image_size=SIZE, latent_dim=8, epochs=8, batch_size=32),
-        DynamicsConfig(hidden_dim=64, num_mixtures=2, epochs=15, batch_size=32), progress=False)
-    goal = GoalScoreConfig(image_size=SIZE, hidden_dim=64, num_mixtures=4, epochs=40, batch_size=16, shift=2)
-    timings.update(train_goal_scores(full_task_demos, root, ("head", "left_forearm"), goal, progress=False))
+    timings = train_world_model(controller_rollouts, full_task_demos, root, *WORLD_CONFIGS, progress=False)
+    timings.update(train_goal_scores(full_task_demos, root, ("head", "left_forearm"), GOAL_CONFIG, progress=False))
     return root, timings
 
 
@@ -49,8 +50,8 @@ def test_transition_pairs_stay_within_episodes():
 def test_models_learn_and_the_goal_score_rises_along_its_demos(world, full_task_demos, tmp_path):
     root, timings = world
     assert set(timings) == {"vae", "dynamics mp_pick", "dynamics mp_insert", "goal score head",
-                            "goal score left_forearm"}
-    for model in ("vae", "dynamics/mp_pick", "dynamics/mp_insert", "goal_score/left_forearm"):
+                            "goal score left_forearm", "goal score latent"}
+    for model in ("vae", "dynamics/mp_pick", "dynamics/mp_insert", "goal_score/left_forearm", "goal_score/latent"):
         losses = json.loads((root / model / "train_log.json").read_text())["losses"]
         assert losses[-1] < losses[0], (model, losses)
     world_model = GearWorldModel.load(root)
@@ -61,7 +62,7 @@ def test_models_learn_and_the_goal_score_rises_along_its_demos(world, full_task_
                                  demos["episode_index"])
     assert metrics["spearman"] > 0.8, metrics
     held_out = evaluate_goal_scores(root, full_task_demos, tmp_path, ("head", "left_forearm"), progress=False)
-    assert set(held_out) == {"head", "left_forearm"} and held_out["head"]["episodes"] == 1
+    assert set(held_out) == {"head", "left_forearm", "latent"} and held_out["head"]["episodes"] == 1
     assert (tmp_path / "goal_score.png").stat().st_size > 10_000
     assert "| head |" in (tmp_path / "goal_score.md").read_text()
 
@@ -100,6 +101,29 @@ def test_parts_not_trained_together_are_refused(world, controller_rollouts, tmp_
     train_vae(images, replace(model.vae.config, epochs=1, seed=1), root / "vae", progress=False)
     with pytest.raises(CheckpointError, match="was trained with another VAE than the one in"):
         GearWorldModel.load(root)
+
+
+def test_a_world_model_training_cut_short_goes_on_where_it_stopped(world, controller_rollouts, full_task_demos,
+                                                                   tmp_path):
+    """With `resume` (the main job's world-model stage) the models already trained at their configuration are kept
+    and only the missing ones train; a model of another configuration trains again."""
+    import shutil
+
+    from conftest import tree_digest
+
+    root = Path(shutil.copytree(world[0], tmp_path / "world"))
+    for part in ("dynamics/mp_insert", "goal_score/head"):  # not yet trained when the run was stopped
+        shutil.rmtree(root / part)
+    kept = {part: tree_digest(root / part) for part in ("vae", "dynamics/mp_pick", "goal_score/left_forearm",
+                                                        "goal_score/latent")}
+    train_world_model(controller_rollouts, full_task_demos, root, *WORLD_CONFIGS, progress=False, resume=True)
+    timings = train_goal_scores(full_task_demos, root, ("head", "left_forearm"), replace(GOAL_CONFIG, epochs=41),
+                                progress=False, resume=True)
+    assert {part: tree_digest(root / part) for part in kept} == {**kept, "goal_score/left_forearm": ANY}
+    assert tree_digest(root / "goal_score/left_forearm") != kept["goal_score/left_forearm"]  # another config
+    assert (root / "dynamics/mp_insert/model.safetensors").is_file() and set(timings) == {
+        "goal score head", "goal score left_forearm", "goal score latent"}
+    GearWorldModel.load(root)  # all trained together
 
 
 def test_a_checkpoint_is_replaced_whole_or_not_at_all(world, tmp_path):
@@ -268,3 +292,33 @@ def test_composing_on_two_workers_gives_the_serial_run(world, tmp_path):
     assert [e.seed for e in runs[2]] == [2, 0, 1]
     assert [e.to_dict() for e in runs[2]] == [e.to_dict() for e in runs[1]]
     assert (tmp_path / "w2" / "episodes.jsonl").read_text() == (tmp_path / "w1" / "episodes.jsonl").read_text()
+
+
+def test_the_latent_goal_score_tracks_progress_without_decoding(world, full_task_demos):
+    """The goal score of the VAE's latents rises along its demonstrations, and a decision with it rolls out the same
+    futures as with the image goal score but never decodes them."""
+    from policy_composer.selector.configuration import LatentGoalScoreConfig
+    from policy_composer.selector.goal_score import LatentGoalScoreModel
+    from policy_composer.selector.train import posteriors
+
+    root, _ = world
+    image, latent = GearWorldModel.load(root), GearWorldModel.load(root, goal_score="latent")
+    assert latent.latent_goal and not image.latent_goal
+    demos = load_frames(full_task_demos, ("left_forearm",), SIZE, episodes=[0, 1], progress=False)
+    means, _ = posteriors(latent.vae, demos[image_key("left_forearm")])
+    metrics = goal_score_metrics(latent.score(means), demos["progress"], demos["episode_index"])
+    assert metrics["spearman"] > 0.8, metrics
+
+    def no_decoding(_):
+        raise AssertionError("the latent goal score decoded a prediction")
+
+    latent.decoder = no_decoding
+    states, applicable = means[[0, -1]], torch.ones(2, 2, dtype=torch.bool)
+    by_latent = latent.selector(horizon=4, samples=8, seed=3, keep_predictions=True).decide(states, applicable)
+    by_image = image.selector(horizon=4, samples=8, seed=3, keep_predictions=True).decide(states, applicable)
+    assert torch.allclose(by_latent.predicted, by_image.predicted, atol=1e-5)
+    assert not torch.allclose(by_latent.scores, by_image.scores)  # scored by another model
+    with pytest.raises(CheckpointError, match="reads 16-D latents, but the VAE's are 8-D"):
+        GearWorldModel(latent.vae, latent.dynamics, LatentGoalScoreModel(LatentGoalScoreConfig(latent_dim=16)))
+    with pytest.raises(ValueError, match="goal_score must be one of image, latent, not 'pixels'"):
+        GearWorldModel.load(root, goal_score="pixels")

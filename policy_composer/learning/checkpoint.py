@@ -90,6 +90,18 @@ def load_config(path: str | Path, config_cls: type[C], what: str, train_hint: st
     return config_cls(**raw)
 
 
+def finished(path: str | Path, config, made_with: dict[str, str] | None = None) -> dict | None:
+    """The training log of the checkpoint at `path` if it was trained with exactly `config` and the models
+    `made_with`, else None: a training that was cut short keeps these parts instead of training them again."""
+    path = Path(path)
+    try:
+        same = load_config(path, type(config), "checkpoint", "") == config and \
+            trained_with(path, "checkpoint", "") == (made_with or {})
+        return json.loads((path / "train_log.json").read_text()) if same else None
+    except (CheckpointError, OSError, ValueError):
+        return None
+
+
 def load_checkpoint(path: str | Path, config_cls: type[C], build: Callable[[C], nn.Module], what: str,
                     train_hint: str) -> nn.Module:
     """Build the model from the checkpoint's config and load its weights, in eval mode."""
