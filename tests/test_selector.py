@@ -294,9 +294,11 @@ def test_composing_on_two_workers_gives_the_serial_run(world, tmp_path):
     assert (tmp_path / "w2" / "episodes.jsonl").read_text() == (tmp_path / "w1" / "episodes.jsonl").read_text()
 
 
-def test_the_latent_goal_score_tracks_progress_without_decoding(world, full_task_demos):
+def test_the_latent_goal_score_tracks_progress_without_decoding(world, full_task_demos, tmp_path):
     """The goal score of the VAE's latents rises along its demonstrations, and a decision with it rolls out the same
     futures as with the image goal score but never decodes them."""
+    import shutil
+
     from policy_composer.selector.configuration import LatentGoalScoreConfig
     from policy_composer.selector.goal_score import LatentGoalScoreModel
     from policy_composer.selector.train import posteriors
@@ -322,3 +324,8 @@ def test_the_latent_goal_score_tracks_progress_without_decoding(world, full_task
         GearWorldModel(latent.vae, latent.dynamics, LatentGoalScoreModel(LatentGoalScoreConfig(latent_dim=16)))
     with pytest.raises(ValueError, match="goal_score must be one of image, latent, not 'pixels'"):
         GearWorldModel.load(root, goal_score="pixels")
+    older = Path(shutil.copytree(root, tmp_path / "world"))  # trained before there was a latent goal score
+    shutil.rmtree(older / "goal_score" / "latent")
+    with pytest.raises(CheckpointError, match="no latent goal score checkpoint in .*train one with `policy-composer "
+                                              "train goal-score`"):
+        GearWorldModel.load(older, goal_score="latent")
