@@ -95,11 +95,12 @@ def train_goal_scores(demos: str | Path, out: str | Path, cameras: tuple[str, ..
     frames = load_frames(demos, cameras, config.image_size, demo_split(demos, "train"),
                          required={"progress": (1,)}, progress=progress)
     vae = load_vae(out / "vae") if (out / "vae" / "config.json").is_file() else None
+    vae_id = weights_id(out / "vae") if vae is not None else None
     timings = {}
     for camera in cameras:
-        images, target, parts = frames[image_key(camera)], frames["progress"], {}
+        images, target = frames[image_key(camera)], frames["progress"]
         with_vae = vae is not None and vae.config.camera == camera
-        parts = {"vae": weights_id(out / "vae")} if with_vae else {}
+        parts = {"vae": vae_id} if with_vae else {}
         path, camera_config = out / "goal_score" / camera, replace(config, camera=camera)
         if resume and (log := finished(path, camera_config, parts)):
             timings[f"goal score {camera}"] = log["seconds"]
@@ -111,7 +112,7 @@ def train_goal_scores(demos: str | Path, out: str | Path, cameras: tuple[str, ..
         timings[f"goal score {camera}"] = time.perf_counter() - t0
     if vae is None:
         return timings
-    path, parts = out / "goal_score" / "latent", {"vae": weights_id(out / "vae")}
+    path, parts = out / "goal_score" / "latent", {"vae": vae_id}
     latent_config = LatentGoalScoreConfig(latent_dim=vae.config.latent_dim, seed=config.seed)
     if resume and (log := finished(path, latent_config, parts)):
         timings["goal score latent"] = log["seconds"]
