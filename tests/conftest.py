@@ -60,21 +60,33 @@ def controller_rollouts(tmp_path_factory):
                           sources=LibrarySources(max_grasp_offset=0.0), controllers=("mp_pick", "mp_insert"))
 
 
-@pytest.fixture(scope="session")
-def act_checkpoint(insertion_demos, tmp_path_factory):
-    """lerobot-train's ACT, two steps on the insertion demos: (the pretrained_model folder, the trainer's log)."""
+def lerobot_train(insertion_demos, out: Path, policy: str, *args: str):
+    """lerobot-train's `policy`, two steps on the insertion demos: (the pretrained_model folder, the trainer's log)."""
     import subprocess
     import sys
-    from pathlib import Path
 
-    out = tmp_path_factory.mktemp("act") / "run"
     cmd = [str(Path(sys.executable).parent / "lerobot-train"), f"--dataset.repo_id=local/{insertion_demos.name}",
-           f"--dataset.root={insertion_demos}", "--policy.type=act", "--policy.pretrained_backbone_weights=null",
+           f"--dataset.root={insertion_demos}", f"--policy.type={policy}", "--policy.pretrained_backbone_weights=null",
            "--policy.push_to_hub=false", "--policy.device=cpu", "--steps=2", "--batch_size=2", "--num_workers=0",
-           f"--output_dir={out}", "--wandb.enable=false", "--log_freq=1", "--save_freq=2"]
+           f"--output_dir={out}", "--wandb.enable=false", "--log_freq=1", "--save_freq=2", *args]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=600,
                          env={**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"})
     return out / "checkpoints" / "last" / "pretrained_model", res
+
+
+@pytest.fixture(scope="session")
+def act_checkpoint(insertion_demos, tmp_path_factory):
+    return lerobot_train(insertion_demos, tmp_path_factory.mktemp("act") / "run", "act")
+
+
+@pytest.fixture(scope="session")
+def diffusion_checkpoint(insertion_demos, tmp_path_factory):
+    """Diffusion Policy at the README's settings, shrunk: two observation steps in, chunks of 8 actions out."""
+    return lerobot_train(insertion_demos, tmp_path_factory.mktemp("diffusion") / "run", "diffusion",
+                         "--policy.use_group_norm=true", "--policy.use_separate_rgb_encoder_per_camera=false",
+                         "--policy.crop_shape=[56,56]", "--policy.n_obs_steps=2", "--policy.horizon=16",
+                         "--policy.n_action_steps=8", "--policy.drop_n_last_frames=7", "--policy.down_dims=[16,32]",
+                         "--policy.noise_scheduler_type=DDIM", "--policy.num_inference_steps=2")
 
 
 def tree_digest(root: Path) -> dict[str, str]:

@@ -30,7 +30,7 @@ from policy_composer.policies.cnn.train import (
     previous_commands,
     train_cnn_policy,
 )
-from policy_composer.policies.lerobot_policy import LeRobotPolicyController
+from policy_composer.policies.lerobot_policy import LeRobotPolicyController, lerobot_label
 from policy_composer.policies.subtasks import SUBTASKS
 from policy_composer.tasks.gear_expert import ExpertConfig, GearAssemblyExpert
 from policy_composer.tasks.gear_kinematics import LeftArmIK
@@ -209,15 +209,26 @@ def test_cnn_controller_acts_from_pixels_within_limits(insertion_demos, rgb_env,
     no_camera.close()
 
 
-def test_lerobot_policy_runs_as_a_controller(act_checkpoint, rgb_env):
-    checkpoint, res = act_checkpoint
+@pytest.mark.parametrize("policy", ["act", "diffusion"])
+def test_lerobot_policy_runs_as_a_controller(policy, rgb_env, request):
+    """ACT and Diffusion Policy run as controllers: Diffusion Policy's observation queue (two steps in) and action
+    chunks (8 out) carry over from step to step, and start afresh at the next activation."""
+    checkpoint, res = request.getfixturevalue(f"{policy}_checkpoint")
     assert res.returncode == 0, (res.stdout + res.stderr)[-2000:]
     controller = LeRobotPolicyController(rgb_env, checkpoint, max_steps=3)
-    assert controller.name == "act_insert" and "sensor_data.head.rgb" in controller.obs_keys
+    assert controller.name == f"{policy}_insert" and "sensor_data.head.rgb" in controller.obs_keys
+    assert lerobot_label(checkpoint) == {"act": "ACT (LeRobot)", "diffusion": "Diffusion Policy (LeRobot)"}[policy]
     obs = start_state(rgb_env, 3, "insert")
     controller.start(obs)
     action = controller.act(obs)
     assert action.shape == (16,) and torch.isfinite(action).all()
+    if policy == "diffusion":
+        queued = len(controller.policy._queues["action"])
+        assert queued == 7  # a chunk of 8 planned, one taken
+        controller.act(obs)
+        assert len(controller.policy._queues["action"]) == queued - 1
+        controller.start(obs)
+        assert len(controller.policy._queues["action"]) == 0
     with pytest.raises(FileNotFoundError, match="not a LeRobot policy checkpoint"):
         LeRobotPolicyController(rgb_env, checkpoint.parent)
 
