@@ -264,10 +264,11 @@ def test_a_run_killed_mid_episode_line_keeps_its_finished_episodes(tmp_path):
         load_episodes(tmp_path)
 
 
-def test_a_batched_decision_scores_as_one_controller_at_a_time(world):
+@pytest.mark.parametrize("goal_score", ["image", "latent"])
+def test_a_batched_decision_scores_as_one_controller_at_a_time(world, goal_score):
     """The selector rolls out and scores the whole library in one pass; the scores are those of rolling out and
     scoring one controller at a time with the same random draws, and the folded decoder decodes as the VAE."""
-    model = GearWorldModel.load(world[0])
+    model = GearWorldModel.load(world[0], goal_score=goal_score)
     latents = torch.randn(20, model.vae.config.latent_dim)
     assert torch.allclose(model.decoder(latents), model.vae.decode(latents), atol=1e-5)
     states = torch.randn(3, model.vae.config.latent_dim)
