@@ -3,7 +3,8 @@
 Run: python benchmarks/selector_speed.py [--decisions 20] [--frames 512]
 Latency: one decision over the library's controllers (all applicable: the worst case) at n = 10 and K = 16,
 batched and one controller at a time, against the reference of encoding one camera image with the VAE in the
-same process; then what the futures' decoding and scoring alone takes, and the scaling with the number of
+same process; then what the futures' decoding and scoring alone takes, with its arithmetic and the least time
+that arithmetic needs at this CPU's matrix-product rate, and the scaling with the number of
 applicable controllers and with a batch of states; then the same with the goal score of the latent
 (`compose --goal-score latent`), which scores the futures without decoding them. Training: seconds
 per epoch over `--frames` random frames for each model at its default configuration, and the time of a full
@@ -17,6 +18,7 @@ import argparse
 import time
 
 import torch
+from torch.utils.flop_counter import FlopCounterMode
 
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
@@ -34,6 +36,19 @@ def timed(fn, repeat: int) -> float:
     for _ in range(repeat):
         fn()
     return (time.perf_counter() - t0) / repeat
+
+
+def scoring_flops(world: GearWorldModel, futures: torch.Tensor) -> int:
+    """Floating-point operations of decoding and scoring `futures`, as torch counts them."""
+    with torch.no_grad(), FlopCounterMode(display=False) as counter:
+        world.score(futures)
+    return counter.get_total_flops()
+
+
+def matmul_flops_per_second(repeat: int, size: int = 2048) -> float:
+    """The CPU's float32 matrix-product rate with torch's own kernels: the most any model's arithmetic can reach."""
+    a, b = torch.randn(size, size), torch.randn(size, size)
+    return 2 * size ** 3 / timed(lambda: a @ b, repeat)
 
 
 def epoch_seconds(step, frames: int, batch: int) -> float:
@@ -80,9 +95,13 @@ def main() -> None:
     futures = torch.randn(W * K, vae_config.latent_dim)
     with torch.no_grad():
         folded, plain = (timed(lambda d=d: d(futures), args.decisions) for d in (world.decoder, vae.decode))
-    floor = timed(lambda: world.score(futures), args.decisions)
-    print(f"  of which decoding and scoring the {W * K} futures: {floor * 1000:.0f} ms (decoding: {folded * 1000:.0f} "
-          f"ms folded, {plain * 1000:.0f} ms with the VAE's own decode)")
+    scoring = timed(lambda: world.score(futures), args.decisions)
+    print(f"  of which decoding and scoring the {W * K} futures: {scoring * 1000:.0f} ms (decoding: "
+          f"{folded * 1000:.0f} ms folded, {plain * 1000:.0f} ms with the VAE's own decode)")
+    flops, rate = scoring_flops(world, futures), matmul_flops_per_second(args.decisions)
+    print(f"  decoding and scoring's arithmetic: {flops / 1e9:.2f} GFLOP; at this CPU's float32 matrix-product rate "
+          f"({rate / 1e9:.0f} GFLOP/s, measured now) it takes at least {flops / rate * 1000:.0f} ms; it runs at "
+          f"{flops / scoring / 1e9:.0f} GFLOP/s ({flops / scoring / rate:.0%} of that rate)")
     print("  by applicable controllers: " + ", ".join(
         f"{w}: {decision(True, w) * 1000:.0f} ms" for w in (1, 3, 5, W)))
     print("  by a batch of states (all applicable): " + ", ".join(
