@@ -31,6 +31,18 @@ def between(low: float, high: float, unit: str = "", kind: type = float):
     return parse
 
 
+def subset_of(choices: tuple[str, ...]):
+    """An argparse type: a comma-separated, non-empty selection from `choices`, in the order of `choices`."""
+    def parse(text: str) -> tuple[str, ...]:
+        picked = {t.strip() for t in text.split(",") if t.strip()}
+        if not picked or picked - set(choices):
+            raise argparse.ArgumentTypeError(f"must be one or more of {','.join(choices)}, comma-separated, "
+                                             f"not {text!r}")
+        return tuple(c for c in choices if c in picked)
+
+    return parse
+
+
 def _number(text: str, kind: type):
     try:
         return kind(text)

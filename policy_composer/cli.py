@@ -8,7 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-from policy_composer.arguments import add_config_options, at_least, between, config_from
+from policy_composer.arguments import add_config_options, at_least, between, config_from, subset_of
 from policy_composer.data import atomic
 from policy_composer.demo import PROFILES
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
@@ -22,7 +22,7 @@ from policy_composer.selector.configuration import (
     GoalScoreConfig,
     VAEConfig,
 )
-from policy_composer.tasks.spec import CAMERA_NAMES, CLEARANCE_MM, RESOLUTION, EnvSettings
+from policy_composer.tasks.spec import CAMERA_NAMES, CLEARANCE_MM, RESOLUTION, SUBTASK_COLUMNS, EnvSettings
 from policy_composer.workers import usable_cores
 
 DEFAULT_GRASP_OFFSET_MM = LibrarySources.max_grasp_offset * 1000  # the expert's and the pick-up's
@@ -269,7 +269,8 @@ def cmd_evaluate_controllers(args: argparse.Namespace) -> int:
     from policy_composer.controller_table import evaluate_table, write_table
 
     rows = evaluate_table([k for k in args.kinds.split(",") if k], _sources(args), args.trials, args.seed,
-                          args.resolution, args.clearance, workers=args.workers or usable_cores())
+                          args.resolution, args.clearance, workers=args.workers or usable_cores(),
+                          columns=args.subtasks)
     for kind, row in rows.items():
         print(f"{kind}: " + ", ".join(f"{c} {cell}" for c, cell in row.items()))
     print(f"table: {write_table(rows, Path(args.out))}")
@@ -403,6 +404,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev_ctrl.add_argument("--trials", type=at_least(1), default=10)
     ev_ctrl.add_argument("--kinds", default=labels, help=f"comma-separated kinds (default: {labels}; '' for none: "
                                                           f"only the --lerobot checkpoints' rows)")
+    ev_ctrl.add_argument("--subtasks", type=subset_of(SUBTASK_COLUMNS), default=SUBTASK_COLUMNS,
+                         help=f"comma-separated columns to run (default: all, {','.join(SUBTASK_COLUMNS)})")
     model_options(ev_ctrl)
     ev_ctrl.add_argument("--out", default="results/controllers")
     workers_option(ev_ctrl)

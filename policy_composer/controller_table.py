@@ -19,8 +19,8 @@ from policy_composer.data import atomic
 from policy_composer.policies.arm import Outcome, run_activation
 from policy_composer.policies.subtasks import TASK_SEQUENCE
 from policy_composer.stats import rate
+from policy_composer.tasks.spec import SUBTASK_COLUMNS
 
-SUBTASK_COLUMNS = ("pick", "move", "insert", "full")
 SEQUENCES = {"pick": ("pick",), "move": ("move",), "insert": ("insert",), "full": TASK_SEQUENCE}
 START_PHASE = {"move": "carry"}  # the expert phase at which a subtask's start state is taken
 PAPER = {  # paper Table I; "*": stopped for safety; "-": not run
@@ -137,9 +137,9 @@ class TrialRunner:
 
 def evaluate_rows(rows: dict[str, tuple[str, ...]], sources, trials: int, first_seed: int = 0,
                   resolution: int = 128, clearance_mm: float = 2.0, progress: bool = True,
-                  workers: int = 1) -> dict[str, dict[str, Cell]]:
-    """Rows of Table I: each row's named controllers (one per subtask) on every column they cover, `trials` seeds
-    from `first_seed` each, the trials spread over `workers` processes."""
+                  workers: int = 1, columns: tuple[str, ...] = SUBTASK_COLUMNS) -> dict[str, dict[str, Cell]]:
+    """Rows of Table I: each row's named controllers (one per subtask) on each of `columns` they cover, `trials`
+    seeds from `first_seed` each, the trials spread over `workers` processes."""
     import torch
     from tqdm import tqdm
 
@@ -150,7 +150,7 @@ def evaluate_rows(rows: dict[str, tuple[str, ...]], sources, trials: int, first_
     items = []
     for row, names in rows.items():
         subtasks = {subtask_of(n, sources) for n in names}
-        items += [(row, column, seed) for column in SUBTASK_COLUMNS if set(SEQUENCES[column]) <= subtasks
+        items += [(row, column, seed) for column in columns if set(SEQUENCES[column]) <= subtasks
                   for seed in range(first_seed, first_seed + trials)]
     setup = partial(TrialRunner, rows, sources, resolution, clearance_mm)
     with tqdm(total=len(items), desc=" and ".join(rows), unit="trial", disable=not progress) as bar:
@@ -176,14 +176,15 @@ def evaluate_controllers(names, sources, trials: int, first_seed: int = 0, resol
 
 
 def evaluate_table(kinds: list[str], sources, trials: int, first_seed: int = 0, resolution: int = 128,
-                   clearance_mm: float = 2.0, progress: bool = True, workers: int = 1) -> dict[str, dict[str, Cell]]:
+                   clearance_mm: float = 2.0, progress: bool = True, workers: int = 1,
+                   columns: tuple[str, ...] = SUBTASK_COLUMNS) -> dict[str, dict[str, Cell]]:
     """Rows of Table I: one for each of `kinds` (MP, DMP, CNN), then one for each LeRobot checkpoint in `sources`."""
     from policy_composer.policies.lerobot_policy import lerobot_label
     from policy_composer.policies.library import names_of_kind
 
     rows = {kind: names_of_kind(kind) for kind in kinds}
     rows.update({lerobot_label(s.path): (s.controller_name,) for s in sources.lerobot})
-    return evaluate_rows(rows, sources, trials, first_seed, resolution, clearance_mm, progress, workers)
+    return evaluate_rows(rows, sources, trials, first_seed, resolution, clearance_mm, progress, workers, columns)
 
 
 def table_row(kind: str, row: dict[str, Cell]) -> str:

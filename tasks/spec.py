@@ -25,6 +25,8 @@ CONTROL_FREQ = 20  # control steps per second (ManiSkill's default, which GearAs
 # Where an episode starts (reset option "start"): the gear on the table, or already in the left gripper above the
 # peg where the insertion begins.
 START_STATES = ("table", "pre_insertion")
+# The paper's Table I columns: each subtask from its own start states, then the full task.
+SUBTASK_COLUMNS = ("pick", "move", "insert", "full")
 # The scripted expert's phases, in order (a recipe records some of them).
 EXPERT_PHASES = ("approach", "descend", "close", "lift", "carry", "insert", "release", "retreat", "done")
 # The flags of GearAssemblyEnv.evaluate() that say how far the task went, in the order the task reaches them.

@@ -36,6 +36,8 @@ def run_cli(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:
     (("compose", "--episodes", "0"), "argument --episodes: must be at least 1, not 0"),
     (("evaluate", "expert", "--episodes", "-1"), "argument --episodes: must be at least 1, not -1"),
     (("evaluate", "controllers", "--trials", "0"), "argument --trials: must be at least 1, not 0"),
+    (("evaluate", "controllers", "--subtasks", "pick,fly"),
+     "argument --subtasks: must be one or more of pick,move,insert,full, comma-separated, not 'pick,fly'"),
     (("compose", "--workers", "0"), "argument --workers: must be at least 1, not 0"),
     (("compose", "--clearance", "0.002"), "argument --clearance: must be between 0.5 and 6 mm, not 0.002"),
     (("record", "gear-insertion-demos", "--resolution", "8"), "argument --resolution: must be between 16 and 512"),

@@ -242,3 +242,5 @@ def test_controller_table_command(tmp_path):
     table = (tmp_path / "controllers.md").read_text()
     assert f"| MP | {one}; paper 10/10 | {one}; paper 10/10 | {one}; paper 1/10 | {one}; paper 1/10 |" in table
     assert (tmp_path / "controllers.csv").read_text().count("\n") == 5
+    only = subprocess.run(cmd + ["--subtasks", "insert"], capture_output=True, text=True, check=True, timeout=600)
+    assert f"MP: pick -, move -, insert {one}, full -" in only.stdout  # one column asked for, one column run
