@@ -108,13 +108,16 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
     return [
         Stage("insertion-demos", f"record the insertion demonstrations ({p.insertion_demos})",
               record(insertion, p.insertion_demos),
-              lambda out, _: _record(insertion, out, p.insertion_demos, p.resolution, workers), resumable=True),
+              lambda out, _: _record(insertion, out, p.insertion_demos, p.resolution, workers), resumable=True,
+              verify=_verify_dataset),
         Stage("transport-demos", f"record the pick-up and carry demonstrations ({p.transport_demos})",
               record(transport, p.transport_demos),
-              lambda out, _: _record(transport, out, p.transport_demos, p.resolution, workers), resumable=True),
+              lambda out, _: _record(transport, out, p.transport_demos, p.resolution, workers), resumable=True,
+              verify=_verify_dataset),
         Stage("full-task-demos", f"record the full-task demonstrations ({p.full_task_demos}, of which "
               f"{p.train_demos} train the goal scorers)", record(full_task, p.full_task_demos),
-              lambda out, _: _record(full_task, out, p.full_task_demos, p.resolution, workers), resumable=True),
+              lambda out, _: _record(full_task, out, p.full_task_demos, p.resolution, workers), resumable=True,
+              verify=_verify_dataset),
         Stage("dmp", f"fit the DMPs to the motion planner's episodes ({p.dmp_episodes})",
               {"episodes": p.dmp_episodes, **env},
               lambda out, _: _fit_dmp(out, p.dmp_episodes)),
@@ -124,7 +127,7 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
         Stage("controller-rollouts", f"record rollouts of each controller ({p.rollouts} each)",
               {**record(rollouts, p.rollouts), **library},
               lambda out, i: _record(rollouts, out, p.rollouts, p.resolution, workers, _sources(i)),
-              inputs=("dmp", "cnn"), resumable=True),
+              inputs=("dmp", "cnn"), resumable=True, verify=_verify_dataset),
         Stage("world-model", "train the VAE, the dynamics models and the goal scorers",
               {"vae": asdict(vae), "dynamics": asdict(dynamics), "goal": asdict(goal), "cameras": CAMERAS},
               lambda out, i: _train_world(out, i, vae, dynamics, goal),
@@ -180,6 +183,14 @@ def _record(recipe, out: Path, episodes: int, resolution: int, workers: int, sou
                   sources=sources, workers=workers)
     s = summarize(root)
     return {"episodes": s["episodes"], "frames": s["frames"], "outcomes": s["outcomes"], "workers": workers}
+
+
+def _verify_dataset(out: Path) -> None:
+    """A recording stage's dataset, as far as it got, passes every reader's checks (frame counts included)."""
+    from policy_composer.data.features import verify_dataset
+
+    if (out / "dataset").exists():
+        verify_dataset(out / "dataset")
 
 
 def _sources(inputs: dict[str, Path]):

@@ -3,8 +3,9 @@
 A stage's key hashes its own configuration and the keys of the stages it reads, so a second run reuses every
 finished stage, a changed setting re-runs that stage and everything downstream of it (the old outputs stay, under
 their own keys), and an interrupted run resumes at the stage it stopped in. A stage is finished when its
-`stage.json` exists; it is written last, atomically. Recording stages keep a partial folder and continue it
-episode by episode; any other unfinished folder is cleared and its stage run again.
+`stage.json` exists (it is written last, atomically) and its output passes the stage's `verify`: a damaged output
+is named, cleared and made again, and so is everything made from it. Recording stages keep a partial folder and
+continue it episode by episode; any other unfinished folder is cleared and its stage run again.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ class Stage:
     run: Callable[[Path, dict[str, Path]], dict]  # (its folder, its inputs' folders) -> facts for the report
     inputs: tuple[str, ...] = ()  # the stages whose outputs it reads
     resumable: bool = False  # keeps an unfinished folder (recordings continue episode by episode)
+    verify: Callable[[Path], None] | None = None  # raises ValueError naming what is damaged in a (partial) output
 
 
 @dataclass
@@ -52,6 +54,7 @@ def stage_key(stage: Stage, input_keys: dict[str, str]) -> str:
 def run_stages(stages: list[Stage], root: Path, log: Callable[[str], None] = print) -> dict[str, StageRecord]:
     """Run (or reuse) each stage in order; returns each stage's record."""
     records: dict[str, StageRecord] = {}
+    remade: set[str] = set()  # stages run again because an output they read was damaged
     for i, stage in enumerate(stages, 1):
         missing = [n for n in stage.inputs if n not in records]
         if missing:
@@ -60,6 +63,14 @@ def run_stages(stages: list[Stage], root: Path, log: Callable[[str], None] = pri
         folder = root / f"{stage.name}-{key}"
         marker = folder / MARKER
         head = f"[{i}/{len(stages)}] {stage.title}"
+        stale = remade.intersection(stage.inputs)
+        damage = None if stale or not folder.exists() else _damage(stage, folder)
+        if stale or damage:
+            remade.add(stage.name)
+            if folder.exists():
+                log(f"{head}: " + (f"its output in {folder} is damaged ({damage}); making it again" if damage else
+                                   f"made again, as {', '.join(sorted(stale))} was"))
+                shutil.rmtree(folder)
         if marker.exists():
             done = json.loads(marker.read_text())
             records[stage.name] = StageRecord(stage.name, stage.title, key, folder, done["seconds"], True,
@@ -82,3 +93,14 @@ def run_stages(stages: list[Stage], root: Path, log: Callable[[str], None] = pri
         log(f"{head}: done in {seconds:.0f} s")
         interrupt.check()
     return records
+
+
+def _damage(stage: Stage, folder: Path) -> str | None:
+    """Why the stage's output (finished, or partial and about to be resumed) cannot be trusted; None if it can."""
+    if stage.verify is None:
+        return None
+    try:
+        stage.verify(folder)
+    except ValueError as e:
+        return str(e)
+    return None

@@ -120,6 +120,62 @@ def check_files(root: Path, info: dict) -> None:
         shown = ", ".join(missing[:3]) + (", ..." if len(missing) > 3 else "")
         raise DatasetError(f"{root} is missing {len(missing)} video file(s) its episodes point to ({shown}); "
                            f"{REPAIR}")
+    check_videos(root, info)
+
+
+def check_videos(root: Path, info: dict, episodes: list[int] | None = None) -> None:
+    """Raise DatasetError unless every camera's video holds exactly its episodes' frames (of `episodes`, default
+    all): a short video would shift every later image against its state and action."""
+    wrong = video_mismatches(root, info, episodes)
+    if wrong:
+        shown = "; ".join(wrong[:3]) + (f"; and {len(wrong) - 3} more" if len(wrong) > 3 else "")
+        raise DatasetError(f"{root}: {len(wrong)} video segment(s) do not hold their episode's frames ({shown}); "
+                           f"the images no longer line up with the states and actions: {REPAIR}")
+
+
+def video_frames(path: Path) -> int:
+    """Frames in a video file, from its container's header (milliseconds; counts packets if the header lacks it)."""
+    import av
+
+    with av.open(str(path)) as container:
+        stream = container.streams.video[0]
+        return stream.frames or sum(1 for packet in container.demux(stream) if packet.size)
+
+
+def video_mismatches(root: Path, info: dict, episodes: list[int] | None = None) -> list[str]:
+    """For each episode and camera, a line naming the file if the episode's video segment (its timestamps) or the
+    file's frame count (the sum of the segments in it) differs from the episode's length."""
+    import pyarrow.parquet as pq
+
+    keys = [k for k, v in info["features"].items() if v["dtype"] == "video"]
+    fps = info["fps"]
+    rows: list[dict] = []
+    for path in sorted((root / "meta" / "episodes").rglob("*.parquet")):
+        rows += pq.read_table(path, columns=["episode_index", "length", *[
+            f"videos/{k}/{c}" for k in keys for c in ("chunk_index", "file_index", "from_timestamp", "to_timestamp")
+        ]]).to_pylist()
+    wrong = []
+    for key in keys:
+        files: dict[str, list[dict]] = {}
+        for row in rows:
+            rel = info["video_path"].format(video_key=key, chunk_index=row[f"videos/{key}/chunk_index"],
+                                            file_index=row[f"videos/{key}/file_index"])
+            files.setdefault(rel, []).append(row)
+        camera = key.removeprefix("observation.images.")
+        for rel, segments in files.items():
+            if episodes is not None and not any(r["episode_index"] in episodes for r in segments):
+                continue
+            for r in segments:
+                span = round((r[f"videos/{key}/to_timestamp"] - r[f"videos/{key}/from_timestamp"]) * fps)
+                if span != r["length"]:
+                    wrong.append(f"episode {r['episode_index']}, camera {camera}: its segment of {rel} spans {span} "
+                                 f"frames for {r['length']} steps")
+            held, wanted = video_frames(root / rel), sum(r["length"] for r in segments)
+            if held != wanted:
+                which = ", ".join(str(r["episode_index"]) for r in segments)
+                wrong.append(f"episode{'s' if len(segments) > 1 else ''} {which}, camera {camera}: {rel} holds "
+                             f"{held} frames for {wanted} steps")
+    return wrong
 
 
 def missing_videos(root: Path, info: dict) -> list[str]:
@@ -137,17 +193,24 @@ def missing_videos(root: Path, info: dict) -> list[str]:
     return sorted(p for p in wanted if not (root / p).is_file())
 
 
+def verify_dataset(root: str | Path) -> dict:
+    """Every check a reader runs on a dataset (after rolling back an interrupted save); returns its info."""
+    from policy_composer.data.journal import recover
+
+    root = Path(root)
+    recover(root)
+    info = read_info(root)
+    check_files(root, info)
+    return info
+
+
 def open_dataset(root: str | Path, required: dict[str, tuple[int, ...] | None] | None = None,
                  fps: int | None = None, episodes: list[int] | None = None, **kwargs):
     """Check a local dataset, then load it with plain `LeRobotDataset(repo_id, root=...)` (offline)."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    from policy_composer.data.journal import recover
-
     root = Path(root)
-    recover(root)  # roll back an episode whose save was interrupted
-    info = read_info(root)
+    info = verify_dataset(root)
     check_features(root, info, required or {}, fps)
-    check_files(root, info)
     repo_id = read_sidecar(root).get("repo_id", f"local/{root.name}")
     return LeRobotDataset(repo_id, root=root, episodes=episodes, **kwargs)

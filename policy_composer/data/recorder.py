@@ -6,13 +6,17 @@ of the controller that produced it; `LeRobotWriter` labels an episode's frames (
 one LeRobot episode: videos per camera (h264 with streaming encoding, about 3x faster than lerobot's default AV1
 here), the rest in parquet. `LeRobotRecorder` is the two in one process.
 
-Each save is journalled (see `journal`), so a Ctrl-C or `kill -9` at any moment leaves every episode saved
-before it loadable, and a writer (or recorder) made with `resume=True` appends to the same dataset.
+LeRobot's streaming encoder is built for real-time capture: when its encoder falls behind, it drops frames. A
+simulation has no deadline, so `LosslessEncoder` waits for it instead, and every saved episode's videos are checked
+to hold exactly its frames before the episode is committed. Each save is journalled (see `journal`), so a Ctrl-C,
+`kill -9` or failed check at any moment leaves every episode saved before it loadable, and a writer (or recorder)
+made with `resume=True` appends to the same dataset.
 """
 
 from __future__ import annotations
 
 import json
+import queue
 import warnings
 from contextlib import contextmanager
 from pathlib import Path
@@ -22,7 +26,15 @@ import numpy as np
 import torch
 
 from policy_composer.data import interrupt, journal
-from policy_composer.data.features import SIDECAR, DatasetError, dataset_features, image_key, read_info, read_sidecar
+from policy_composer.data.features import (
+    SIDECAR,
+    DatasetError,
+    check_videos,
+    dataset_features,
+    image_key,
+    read_info,
+    read_sidecar,
+)
 
 VCODEC = "h264"  # not "auto": it picks NVENC and fails without a GPU
 
@@ -109,6 +121,45 @@ class FrameBuffer(gym.Wrapper):
         return frames
 
 
+def _lossless_dataset_class():
+    """LeRobotDataset whose streaming encoder never drops a frame (lerobot is imported only when writing)."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+    from lerobot.datasets.video_utils import StreamingVideoEncoder
+
+    class LosslessEncoder(StreamingVideoEncoder):
+        """lerobot's per-camera encoder threads, with a writer that waits for them however long they take:
+        `feed_frame` blocks while the queue is full (lerobot's drops the frame after 0.1 s), and `finish_episode`
+        waits for every thread to finish (lerobot's gives up after 120 s and keeps a truncated file)."""
+
+        def _put(self, video_key: str, item) -> bool:
+            """Put `item` on the camera's queue, waiting as long as its encoder runs; False if it has stopped."""
+            while self._episode_active and self._threads[video_key].is_alive():
+                try:
+                    self._frame_queues[video_key].put(item, timeout=1.0)
+                    return True
+                except queue.Full:
+                    continue
+            return False
+
+        def feed_frame(self, video_key: str, image: np.ndarray) -> None:
+            if not self._put(video_key, image.copy()):
+                super().feed_frame(video_key, image)  # no episode, or a crashed encoder: lerobot raises its error
+
+        def finish_episode(self):
+            for video_key in self._threads:
+                if self._put(video_key, None):  # lerobot's end-of-episode sentinel
+                    self._threads[video_key].join()
+            return super().finish_episode()  # its sentinels and joins find the threads done; it collects results
+
+    class LosslessDataset(LeRobotDataset):
+        @staticmethod
+        def _build_streaming_encoder(fps, rgb_encoder, depth_encoder, encoder_queue_maxsize, encoder_threads):
+            return LosslessEncoder(fps=fps, rgb_encoder=rgb_encoder, depth_encoder=depth_encoder,
+                                   queue_maxsize=encoder_queue_maxsize, encoder_threads=encoder_threads)
+
+    return LosslessDataset
+
+
 class LeRobotWriter:
     """Writes episodes of buffered frames into the LeRobotDataset at `root`, each one whole or not at all."""
 
@@ -162,10 +213,11 @@ class LeRobotWriter:
         return names.index(name)
 
     def save_episode(self, frames: list[dict], success: bool, **episode_info) -> None:
-        """Label `frames` (from a `FrameBuffer`) and write them as one episode; all or nothing, even on kill -9."""
-        from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
+        """Label `frames` (from a `FrameBuffer`) and write them as one episode; all or nothing, even on kill -9.
+        An episode whose videos do not hold exactly its frames is rolled back, and a DatasetError says so."""
         import datasets
+
+        LosslessDataset = _lossless_dataset_class()
 
         if not frames:
             raise ValueError("no frames to save: step the env with recording on first")
@@ -176,15 +228,22 @@ class LeRobotWriter:
         with interrupt.held_back(), _quiet_lerobot():  # an episode is written whole
             journal.begin(self.root)
             if self.root.exists():  # lerobot's resume path: this episode goes into new files
-                dataset = LeRobotDataset.resume(self.repo_id, root=self.root, **self.video)
+                dataset = LosslessDataset.resume(self.repo_id, root=self.root, **self.video)
             else:
-                dataset = LeRobotDataset.create(self.repo_id, fps=self.fps, features=self.features, root=self.root,
-                                                robot_type="panda_pair", use_videos=True, **self.video)
+                dataset = LosslessDataset.create(self.repo_id, fps=self.fps, features=self.features, root=self.root,
+                                                 robot_type="panda_pair", use_videos=True, **self.video)
             datasets.disable_progress_bars()  # after opening: lerobot's loader turns them back on
             for frame in frames:
                 dataset.add_frame(frame)
             dataset.save_episode()
             dataset.finalize()
+            try:
+                info = read_info(self.root)
+                check_videos(self.root, info, episodes=[info["total_episodes"] - 1])
+            except DatasetError as e:
+                journal.recover(self.root)
+                raise DatasetError(f"episode {self.num_episodes} was not saved, and the recording stopped: "
+                                   f"{e}") from None
             self.sidecar["episodes"].append({"success": bool(success), "length": T, **episode_info})
             (self.root / SIDECAR).write_text(json.dumps(self.sidecar, indent=1))
             journal.commit(self.root)
