@@ -17,6 +17,7 @@ plate). ``evaluate`` also gives the subtask flags and an integer ``stage`` (0 pi
 from __future__ import annotations
 
 from collections.abc import Sequence
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -27,7 +28,7 @@ from mani_skill.envs.sapien_env import BaseEnv
 from mani_skill.envs.utils.randomization.pose import random_quaternions
 from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import sapien_utils
-from mani_skill.utils.registration import register_env
+from mani_skill.utils.registration import make, make_vec, register
 from mani_skill.utils.scene_builder.table import TableSceneBuilder
 from mani_skill.utils.structs.pose import Pose
 from transforms3d.euler import euler2quat
@@ -35,10 +36,18 @@ from transforms3d.euler import euler2quat
 from policy_composer.tasks import panda_light  # noqa: F401  (registers the "panda_light" agent)
 from policy_composer.tasks.gear_geometry import GearSpec, build_gear, build_peg_module
 from policy_composer.tasks.gear_kinematics import REST_QPOS, LeftArmIK, plate_direction
-from policy_composer.tasks.spec import ACTION_NAMES, ARM_JOINTS, CAMERA_NAMES, START_STATES, STATE_NAMES  # noqa: F401
+from policy_composer.tasks.spec import (  # noqa: F401
+    ACTION_NAMES,
+    ARM_JOINTS,
+    CAMERA_NAMES,
+    ENV_ID,
+    MAX_EPISODE_STEPS,
+    START_STATES,
+    STATE_NAMES,
+)
 
 SUPPORTED_ROBOTS = (("panda_light", "panda_light"), ("panda", "panda"))
-SUPPORTED_CONTROL_MODES = ("pd_joint_pos", "pd_joint_delta_pos")
+SUPPORTED_CONTROL_MODES = ("pd_joint_pos", "pd_joint_delta_pos")  # the first is the default
 
 LEFT_BASE = sapien.Pose(p=[0.0, -0.7, 0.0], q=euler2quat(0, 0, np.pi / 2))
 RIGHT_BASE = sapien.Pose(p=[0.0, 0.7, 0.0], q=euler2quat(0, 0, -np.pi / 2))
@@ -77,7 +86,6 @@ CLOSE_STEPS = 6  # control steps the gripper takes to close on the gear (held st
 SETTLE_STEPS = 4  # then the grasp alone holds it
 
 
-@register_env("GearAssembly-v1", max_episode_steps=400)
 class GearAssemblyEnv(BaseEnv):
     """Bimanual gear assembly: the left Panda puts the gear on the peg the right Panda holds."""
 
@@ -88,7 +96,7 @@ class GearAssemblyEnv(BaseEnv):
         self,
         *args,
         robot_uids: tuple[str, str] = ("panda_light", "panda_light"),
-        control_mode: str = "pd_joint_pos",
+        control_mode: str | None = SUPPORTED_CONTROL_MODES[0],
         cameras: Sequence[str] = CAMERA_NAMES,
         camera_width: int = 128,
         camera_height: int = 128,
@@ -101,6 +109,7 @@ class GearAssemblyEnv(BaseEnv):
         if robot_uids not in SUPPORTED_ROBOTS:
             raise ValueError(f"GearAssembly-v1 does not support robot_uids={robot_uids!r}; "
                              f"choose one of {list(SUPPORTED_ROBOTS)}")
+        control_mode = control_mode or SUPPORTED_CONTROL_MODES[0]  # None: the default, as in ManiSkill's scripts
         if control_mode not in SUPPORTED_CONTROL_MODES:
             raise ValueError(f"GearAssembly-v1 does not support control_mode={control_mode!r}; "
                              f"choose one of {list(SUPPORTED_CONTROL_MODES)}")
@@ -380,3 +389,9 @@ class GearAssemblyEnv(BaseEnv):
 
     def compute_normalized_dense_reward(self, obs: Any, action: torch.Tensor, info: dict):
         return self.compute_dense_reward(obs, action, info) / 6.0
+
+
+# ManiSkill's registry (its `make` reads it); gymnasium's entry, which points here, is made by `policy_composer.tasks`.
+register(ENV_ID, GearAssemblyEnv, max_episode_steps=MAX_EPISODE_STEPS)
+make_env = partial(make, env_id=ENV_ID)
+make_vec_env = partial(make_vec, env_id=ENV_ID)

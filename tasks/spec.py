@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+ENV_ID = "GearAssembly-v1"
+MAX_EPISODE_STEPS = 400
 CAMERA_NAMES = ("head", "left_forearm", "right_forearm")
 ARM_JOINTS = tuple(f"panda_joint{i}" for i in range(1, 8))
 # observation.state: both arms' joint angles and gripper widths, in this order.

@@ -146,6 +146,21 @@ def test_bad_configuration_names_the_problem_and_the_choices(kwargs, message):
         gym.make("GearAssembly-v1", obs_mode="state_dict", **kwargs)
 
 
+def test_the_package_import_registers_the_env_and_none_is_the_default_control_mode():
+    """As with ManiSkill's own tasks: `import policy_composer.tasks` is enough for gym.make (the simulator loads only
+    then), and control_mode=None, which ManiSkill's example scripts pass, means the task's default."""
+    import subprocess
+    import sys
+
+    code = ("import sys, gymnasium as gym, policy_composer.tasks\n"
+            "assert 'mani_skill' not in sys.modules\n"
+            "env = gym.make('GearAssembly-v1', obs_mode='state_dict', control_mode=None)\n"
+            "print(sorted(set(env.unwrapped.control_mode.values())), env._max_episode_steps)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split("\n")[-2] == "['pd_joint_pos'] 400"  # and ManiSkill's time limit
+
+
 def test_flat_action_of_the_wrong_size_is_refused(state_env):
     state_env.reset(seed=0)
     with pytest.raises(ValueError, match="expects 16"):
