@@ -354,3 +354,61 @@ def test_lerobot_trainer_runs_on_our_dataset(act_checkpoint):
     assert res.returncode == 0, log[-3000:]
     assert "step:2" in log and "End of training" in log
     assert (checkpoint / "model.safetensors").is_file()
+
+
+def test_a_demonstration_dataset_is_told_by_its_controller(insertion_demos):
+    """Demonstrations name no rollout controller per episode: their frames' controller (the expert) tells them."""
+    with pytest.raises(DatasetError, match="every episode of .* is expert's: dropping them would leave no dataset"):
+        drop_controller(insertion_demos, "expert")
+    with pytest.raises(DatasetError, match="no episodes of controller 'mp_pick' \\(its episodes are expert's\\)"):
+        drop_controller(insertion_demos, "mp_pick")
+
+
+def test_a_dataset_edited_by_lerobot_says_what_it_lost(insertion_demos, tmp_path):
+    """lerobot-edit-dataset writes a new dataset without the project's metadata: it loads, and `dataset info`, the
+    card and `dataset drop` say what is unknown instead of dropping lines or claiming what they cannot know."""
+    from lerobot.datasets.dataset_tools import delete_episodes
+
+    edited = tmp_path / "edited"
+    delete_episodes(open_dataset(insertion_demos), [0], output_dir=edited)
+    assert open_dataset(edited).num_episodes == 1
+    res = subprocess.run([str(BIN / "policy-composer"), "dataset", "info", str(edited)], capture_output=True,
+                         text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert "provenance:  meta/policy_composer.json is missing: this GearAssembly-v1 recording was edited" in res.stdout
+    description = card_fields(edited)["dataset_description"]
+    assert "edited by a tool that does not carry it" in description and "Recorded with" not in description
+    with pytest.raises(DatasetError, match="cannot tell .* episodes by controller: meta/policy_composer.json is"):
+        drop_controller(edited, "expert")
+
+
+def test_the_card_of_a_dataset_recorded_elsewhere_describes_only_what_it_holds(tmp_path):
+    """A 7-D, one-camera LeRobot dataset this project did not record: the card claims no task, arms or labels."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    root = tmp_path / "so100"
+    features = {"observation.images.front": {"dtype": "video", "shape": (32, 32, 3),
+                                             "names": ["height", "width", "channels"]},
+                "observation.state": {"dtype": "float32", "shape": (7,), "names": [f"j{i}" for i in range(7)]},
+                "action": {"dtype": "float32", "shape": (7,), "names": [f"j{i}" for i in range(7)]}}
+    ds = LeRobotDataset.create("me/so100", fps=30, features=features, root=root, robot_type="so100",
+                               use_videos=True)
+    rng = np.random.default_rng(0)
+    for _ in range(2):
+        for _ in range(5):
+            ds.add_frame({"observation.images.front": rng.integers(0, 255, (32, 32, 3), dtype=np.uint8),
+                          "observation.state": rng.random(7, dtype=np.float32),
+                          "action": rng.random(7, dtype=np.float32), "task": "fold"})
+        ds.save_episode()
+    ds.finalize()
+    assert "not recorded by policy-composer" in summarize(root)["provenance"]
+    out = tmp_path / "README.md"
+    res = subprocess.run([str(BIN / "policy-composer"), "dataset", "card", str(root), "--out", str(out)],
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    card = out.read_text()
+    for absent in ("GearAssembly", "both arms", "policy-composer 0", "gear-assembly", "`stage`"):
+        assert absent not in card, absent
+    for present in ("robot type `so100`", "2 episodes, 10 frames at 30 fps", "`observation.images.front` (32x32x3)",
+                    "- `observation.state`: float32 [7]"):
+        assert present in card, present

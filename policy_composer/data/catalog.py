@@ -8,6 +8,7 @@ from pathlib import Path
 
 from policy_composer.data import journal
 from policy_composer.data.features import DatasetError, check_files, read_info, read_sidecar
+from policy_composer.tasks.spec import ENV_ID, STATE_NAMES
 
 REPO_ID = re.compile(r"^[A-Za-z0-9][\w.-]*/[A-Za-z0-9][\w.-]*$")
 
@@ -31,6 +32,22 @@ def _episode_success(root: Path, info: dict) -> list[bool] | None:
     return [last[e] for e in sorted(last)]
 
 
+def provenance(info: dict, sidecar: dict) -> str | None:
+    """Why the project's own facts of a dataset (recipe, controller names, per-episode seeds) are missing or do not
+    fit it; None when they do. LeRobot's edit tools (lerobot-edit-dataset) write new datasets without them."""
+    if not sidecar:
+        if info["features"].get("observation.state", {}).get("names") == list(STATE_NAMES):
+            return (f"meta/policy_composer.json is missing: this {ENV_ID} recording was edited by a tool that does "
+                    "not carry it (such as lerobot-edit-dataset), so its recipe and the names of its controllers are "
+                    "unknown; copy the file from the dataset it came from to restore them")
+        return "not recorded by policy-composer (no meta/policy_composer.json): only LeRobot's metadata is known"
+    listed = len(sidecar.get("episodes", []))
+    if listed != info["total_episodes"]:
+        return (f"meta/policy_composer.json lists {listed} episodes but the dataset holds {info['total_episodes']} "
+                "(it was edited by a tool that does not update the file): per-episode facts are not shown")
+    return None
+
+
 def summarize(root: str | Path) -> dict:
     """What `policy-composer dataset info` prints: size, features, cameras, fps, success rate, provenance."""
     root = Path(root)
@@ -42,6 +59,7 @@ def summarize(root: str | Path) -> dict:
     cameras = {k.removeprefix("observation.images."): tuple(v["shape"]) for k, v in features.items()
                if v["dtype"] in ("video", "image")}
     success = _episode_success(root, info)
+    unfit = provenance(info, sidecar)
     summary = {
         "path": str(root),
         "repo_id": sidecar.get("repo_id", f"local/{root.name}"),
@@ -54,7 +72,9 @@ def summarize(root: str | Path) -> dict:
         "success_rate": None if not success else sum(success) / len(success),
         "recipe": sidecar.get("recipe"),
         "controllers": sidecar.get("controllers"),
-        "outcomes": _outcomes(sidecar),
+        "outcomes": {} if unfit else _outcomes(sidecar),
+        "provenance": unfit,
+        "robot_type": info.get("robot_type"),
     }
     if sidecar.get("train_episodes") is not None:
         n = min(sidecar["train_episodes"], info["total_episodes"])
@@ -74,6 +94,8 @@ def _outcomes(sidecar: dict) -> dict[str, dict[str, int]]:
 
 def format_summary(summary: dict) -> str:
     lines = [f"{summary['path']}  (LeRobotDataset {summary['format']}, repo_id {summary['repo_id']})"]
+    if summary["provenance"]:
+        lines.append(f"  provenance:  {summary['provenance']}")
     if summary["recipe"]:
         lines.append(f"  recipe:      {summary['recipe']}")
     lines.append(f"  episodes:    {summary['episodes']}   frames: {summary['frames']}   fps: {summary['fps']}")
@@ -132,24 +154,29 @@ CITATION = """@article{angelov2020composing,
 
 def card_fields(root: str | Path) -> dict[str, str]:
     """The dataset card's description, paper and citation (LeRobot's card template fills them in): what the dataset
-    holds (its recipe, task, cameras), what its labels mean, its success rate and the project version."""
+    holds (its recipe, task, cameras), what its labels mean, its success rate and the project version. A dataset
+    this project did not record (or whose metadata an edit dropped) is described from LeRobot's metadata alone."""
+    summary, sidecar = summarize(root), read_sidecar(root)
+    if not sidecar:
+        return {"dataset_description": _foreign_description(summary)}
     from importlib.metadata import version
 
     from policy_composer.data.recipes import RecipeError, load_recipe
 
-    summary, sidecar = summarize(root), read_sidecar(root)
     try:
         recipe = load_recipe(summary["recipe"]) if summary["recipe"] else None
     except RecipeError:  # a recipe of the user's own, not shipped with this version
         recipe = None
     env = sidecar.get("env", {})
     rate = summary["success_rate"]
-    kept = [e["success"] for e in sidecar.get("episodes", [])]
+    kept = [e["success"] for e in sidecar.get("episodes", [])] if not summary["provenance"] else []
     goal = (f" Each episode's goal, `{recipe.goal}`, was reached in {100 * sum(kept) / len(kept):.0f}% of them."
             if recipe is not None and recipe.goal != "success" and kept else "")
-    lines = [f"Recorded with policy-composer {version('policy-composer')} in the ManiSkill task GearAssembly-v1 "
+    lines = [f"Recorded with policy-composer {version('policy-composer')} in the ManiSkill task {ENV_ID} "
              "(two Panda arms: the left one picks a gear up and puts it onto a peg the right one holds), for a "
              f"reproduction of *{PAPER}*.", ""]
+    if summary["provenance"]:
+        lines += [f"**Edited.** {summary['provenance']}.", ""]
     if recipe is not None:
         lines += [f"**Recipe `{recipe.name}`.** {recipe.description}", "", f"**Task.** {recipe.task}", ""]
     lines += [f"**Size.** {summary['episodes']} episodes, {summary['frames']} frames at {summary['fps']} fps; the "
@@ -167,12 +194,31 @@ def card_fields(root: str | Path) -> dict[str, str]:
             "url": "policy-composer (see its README)"}
 
 
+def _foreign_description(summary: dict) -> str:
+    """What a dataset without the project's metadata holds, from LeRobot's own: no claim about how it was made."""
+    rate = summary["success_rate"]
+    lines = [f"A LeRobot dataset ({summary['format']}" + (f", robot type `{summary['robot_type']}`"
+                                                         if summary["robot_type"] else "") + ").", "",
+             f"**Provenance.** {summary['provenance']}.", "",
+             f"**Size.** {summary['episodes']} episodes, {summary['frames']} frames at {summary['fps']} fps"
+             + ("." if rate is None else f"; `next.success` at the end of {100 * rate:.0f}% of the episodes."), "",
+             "**Cameras.** " + (", ".join(f"`observation.images.{c}` ({'x'.join(map(str, s))})"
+                                          for c, s in summary["cameras"].items()) or "none") + ".", "",
+             "**Features.**", *[f"- `{k}`: {dtype} {list(shape)}" for k, (dtype, shape) in summary["features"].items()]]
+    return "\n".join(lines)
+
+
 def dataset_card(root: str | Path, repo_id: str | None = None):
     """The card `dataset push` uploads, built offline (a huggingface_hub DatasetCard)."""
     from lerobot.datasets.utils import DatasetInfo, create_lerobot_dataset_card
 
-    return create_lerobot_dataset_card(tags=CARD_TAGS, dataset_info=DatasetInfo.from_dict(read_info(root)),
+    return create_lerobot_dataset_card(tags=card_tags(root), dataset_info=DatasetInfo.from_dict(read_info(root)),
                                        license="apache-2.0", repo_id=repo_id, **card_fields(root))
+
+
+def card_tags(root: str | Path) -> list[str]:
+    """The project's tags on a card of its own recordings only (LeRobot adds its own tag to every card)."""
+    return CARD_TAGS if read_sidecar(root) else []
 
 
 def view_dataset(root: str | Path, episode: int, out: str | Path | None = None) -> Path | None:
@@ -213,8 +259,26 @@ def push_dataset(root: str | Path, repo_id: str, private: bool = False, branch: 
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     dataset = LeRobotDataset(repo_id, root=root)
-    dataset.push_to_hub(branch=branch, private=private, tags=CARD_TAGS, **card_fields(root))
+    dataset.push_to_hub(branch=branch, private=private, tags=card_tags(root), **card_fields(root))
     return f"https://huggingface.co/datasets/{repo_id}"
+
+
+def episode_controllers(root: Path, info: dict, sidecar: dict) -> list[str | None]:
+    """Per episode, the controller it records: the one its rollout ran, or the one that produced all its frames
+    (a demonstration's expert); None for an episode several controllers drove."""
+    import pyarrow.parquet as pq
+
+    episodes, names = sidecar.get("episodes", []), sidecar.get("controllers", [])
+    if all("controller_name" in e for e in episodes):
+        return [e["controller_name"] for e in episodes]
+    used: dict[int, set[int]] = {}
+    if "controller" in info["features"]:
+        for path in sorted((root / "data").rglob("*.parquet")):
+            table = pq.read_table(path, columns=["episode_index", "controller"]).to_pydict()
+            for ep, c in zip(table["episode_index"], table["controller"]):
+                used.setdefault(ep, set()).add(c)
+    return [e.get("controller_name") or (names[next(iter(used[i]))] if len(used.get(i, ())) == 1 else None)
+            for i, e in enumerate(episodes)]
 
 
 def drop_controller(root: str | Path, controller: str) -> int:
@@ -229,11 +293,19 @@ def drop_controller(root: str | Path, controller: str) -> int:
     from policy_composer.data.features import SIDECAR, open_dataset
 
     root = Path(root)
-    sidecar = read_sidecar(root)
-    drop = [i for i, e in enumerate(sidecar.get("episodes", [])) if e.get("controller_name") == controller]
+    journal.recover(root)
+    info, sidecar = read_info(root), read_sidecar(root)
+    unfit = provenance(info, sidecar)
+    if unfit:
+        raise DatasetError(f"cannot tell {root}'s episodes by controller: {unfit}")
+    owners = episode_controllers(root, info, sidecar)
+    drop = [i for i, owner in enumerate(owners) if owner == controller]
     if not drop:
-        raise DatasetError(f"{root} has no episodes of controller {controller!r} (it has "
-                           f"{sorted({e.get('controller_name') for e in sidecar.get('episodes', [])} - {None})})")
+        raise DatasetError(f"{root} has no episodes of controller {controller!r} (its episodes are "
+                           f"{', '.join(sorted(set(owners) - {None})) or 'of several controllers each'}'s)")
+    if len(drop) == len(owners):
+        raise DatasetError(f"every episode of {root} is {controller}'s: dropping them would leave no dataset "
+                           "(delete the folder instead)")
     new_root = root.with_name(root.name + ".dropping")
     shutil.rmtree(new_root, ignore_errors=True)
     delete_episodes(open_dataset(root), drop, output_dir=new_root, repo_id=sidecar.get("repo_id"))
