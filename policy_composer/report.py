@@ -50,7 +50,7 @@ def write_report(out: Path, profile, records: dict[str, StageRecord], wall_secon
     composed = load_episodes(records["compose"].folder)
     knocked = load_episodes(records["knock-out"].folder)
     sections = [
-        _header(profile, records, wall_seconds),
+        _header(profile, records, wall_seconds, out),
         _table_one(records, composed, knocked, link),
         _composition(composed, asset("compose", f"composed_seed{composed[0].seed}.mp4", "composed.mp4")
                      if composed else None,
@@ -85,8 +85,11 @@ th {{ background: #f2f2f2; }} img, video {{ max-width: 100%; }} code {{ backgrou
 """
 
 
-def _header(profile, records: dict[str, StageRecord], wall_seconds: float) -> str:
+def _header(profile, records: dict[str, StageRecord], wall_seconds: float, out: Path) -> str:
     ran = [r for r in records.values() if not r.reused]
+    readme = Path(__file__).resolve().parents[1] / "README.md"
+    where = f"[the README's main-job section]({os.path.relpath(readme, out)}#the-main-job)" if readme.exists() else \
+        "the main-job section of policy-composer's README"
     return "\n".join([
         "# Composing diverse policies: the paper reproduced on this machine", "",
         f"Profile `{profile.name}`, written {time.strftime('%Y-%m-%d %H:%M')}. This run took "
@@ -96,6 +99,8 @@ def _header(profile, records: dict[str, StageRecord], wall_seconds: float) -> st
            if len(ran) < len(records) else "."),
         "",
         f"**What holds at this size.** {profile.holds}", "",
+        *([f"**Measured elsewhere, not by this run:** {profile.elsewhere}, in {where}.", ""]
+          if profile.elsewhere else []),
         f"Sizes: {profile.insertion_demos} insertion and {profile.transport_demos} pick-up and carry demonstrations, "
         f"{profile.train_demos} full-task demonstrations "
         f"for the goal scorers ({profile.full_task_demos - profile.train_demos} held out), {profile.rollouts} rollouts "

@@ -198,3 +198,20 @@ def test_the_main_job_runs_every_stage_reuses_them_and_writes_a_report_a_browser
     assert {"report/goal_score.png", "report/mdp19_solution.png", "report/mdp100_heatmap_lookahead.png"} <= set(images)
     assert all(width > 0 for width in images.values()), f"figures that did not render: {images}"
     assert probe["videos"] and all(state >= 1 and width > 0 for _, state, width in probe["videos"]), probe["videos"]
+
+
+def test_the_report_states_only_its_own_runs_figures(tmp_path):
+    """Figures other runs measured are not written into a report as its own: they are named, dated and linked."""
+    from policy_composer.demo import PROFILES
+    from policy_composer.pipeline import StageRecord
+    from policy_composer.report import _header
+
+    out = tmp_path / "results"
+    records = {"compose": StageRecord("compose", "compose", "k", out / "pipeline" / "compose-k", 60.0, False)}
+    header = _header(PROFILES["quick"], records, 60.0, out)
+    assert "99/100" not in header and "20 of 20" not in header
+    line = next(line for line in header.splitlines() if line.startswith("**Measured elsewhere, not by this run:**"))
+    assert "(measured 2026-12-02)" in line
+    target = re.search(r"\]\(([^)#]+)#the-main-job\)", line).group(1)
+    assert (out / target).resolve() == ROOT / "README.md"
+    assert "## The main job" in (ROOT / "README.md").read_text()
