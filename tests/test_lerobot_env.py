@@ -73,6 +73,23 @@ def test_lerobot_eval_runs_a_checkpoint_trained_on_our_dataset(act_checkpoint, t
     assert np.isfinite(metrics["sum_rewards"]).all() and len(list(out.rglob("*.mp4"))) == 2
 
 
+def test_lerobot_eval_says_when_the_policy_was_trained_on_other_images(act_checkpoint, monkeypatch, caplog):
+    """A checkpoint trained on 64-px images, evaluated on 128-px ones: the plugin says so, with the fix, before the
+    run (it reads lerobot-eval's --policy.path the way lerobot does)."""
+    from lerobot_env_gear_assembly import GearAssemblyEnv
+
+    checkpoint, _ = act_checkpoint
+    assert GearAssemblyEnv(resolution=64).policy_mismatches(checkpoint) == []
+    assert GearAssemblyEnv(resolution=64, cameras=["head"]).policy_mismatches(checkpoint) == [
+        f"it reads the {c} camera, which --env.cameras leaves out" for c in ("left_forearm", "right_forearm")]
+    monkeypatch.setattr(sys, "argv", ["lerobot-eval", f"--policy.path={checkpoint}", "--env.type=gear_assembly"])
+    with caplog.at_level("WARNING"):
+        envs = GearAssemblyEnv(resolution=128).create_envs(n_envs=1)
+    envs["gear_assembly"][0].close()
+    warned = [r.getMessage() for r in caplog.records if "will not see what it was trained on" in r.getMessage()]
+    assert len(warned) == 3 and all("64x64" in w and "--env.resolution=64" in w for w in warned), warned
+
+
 def recorded_entities(rrd: Path) -> set[str]:
     from rerun.experimental import RrdReader
 

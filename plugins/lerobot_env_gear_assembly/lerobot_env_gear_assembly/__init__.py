@@ -6,8 +6,11 @@ registers the config below; the env is `policy_composer.tasks.lerobot_env.GearAs
 
 from __future__ import annotations
 
+import json
+import logging
 from dataclasses import dataclass, field
 from functools import partial
+from pathlib import Path
 
 from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
@@ -39,9 +42,33 @@ class GearAssemblyEnv(EnvConfig):
         return {"task": self.task, "resolution": self.resolution, "cameras": tuple(self.cameras),
                 "clearance_mm": self.clearance_mm}
 
+    def policy_mismatches(self, policy_path: str | Path) -> list[str]:
+        """What a checkpoint's config expects of the cameras that this env does not give: lerobot-eval hands the
+        policy the env's images as they are, so a policy trained on other image sizes runs, sees what it never saw,
+        and fails without a hint."""
+        config = Path(policy_path) / "config.json"
+        features = json.loads(config.read_text()).get("input_features", {}) if config.is_file() else {}
+        found = []
+        for key, feature in features.items():
+            camera = key.removeprefix(f"{OBS_IMAGES}.")
+            if camera == key:
+                continue
+            size = tuple(feature["shape"][-2:])  # (3, H, W)
+            if camera not in self.cameras:
+                found.append(f"it reads the {camera} camera, which --env.cameras leaves out")
+            elif size != (self.resolution, self.resolution):
+                found.append(f"it was trained on {size[1]}x{size[0]} {camera} images and this env renders "
+                             f"{self.resolution}x{self.resolution}: pass --env.resolution={size[1]}")
+        return found
+
     def create_envs(self, n_envs: int, use_async_envs: bool = False):
         """{"gear_assembly": {0: a vector of n_envs envs}}, built directly (no gym registry entry to look up)."""
         import gymnasium as gym
+        from lerobot.configs import parser
+
+        policy = parser.get_path_arg("policy")  # lerobot-eval's --policy.path, read the way lerobot reads it
+        for problem in self.policy_mismatches(policy) if policy else []:
+            logging.warning(f"gear_assembly: the policy at {policy} will not see what it was trained on: {problem}")
         from gymnasium.vector import AutoresetMode
 
         from policy_composer.tasks.lerobot_env import GearAssemblyLeRobotEnv
