@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from policy_composer.data.atomic import replacing_folder
-from policy_composer.learning.checkpoint import CheckpointError
+from policy_composer.learning.checkpoint import CheckpointError, check_finite
 from policy_composer.policies.arm import Outcome, Segment, run_activation
 from policy_composer.policies.configuration_dmp import DMPConfig
 from policy_composer.policies.planning import VELOCITY_LIMIT, time_parameterize
@@ -74,6 +74,7 @@ class DMPLibrary:
             raise CheckpointError(f"the DMP library in {directory} does not read ({type(e).__name__}: "
                                   f"{str(e).splitlines()[0][:200] if str(e) else ''}); fit it again with "
                                   f"`policy-composer train dmp`") from None
+        check_finite(directory / "dmp.safetensors", tensors, "fit it again with `policy-composer train dmp`")
         return lib
 
 

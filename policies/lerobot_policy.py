@@ -14,6 +14,7 @@ import numpy as np
 import torch
 
 from policy_composer.data.frames import to_model_image
+from policy_composer.learning.checkpoint import check_finite
 from policy_composer.policies.subtasks import SUBTASKS, LearnedController, Subtask, check_camera
 from policy_composer.tasks.spec import ACTION_NAMES, STATE_NAMES
 
@@ -66,6 +67,7 @@ class LeRobotPolicyController(LearnedController):
                              f"{tuple(cfg.output_features['action'].shape)}, "
                              f"GearAssembly-v1 takes ({len(ACTION_NAMES)},)")
         self.policy = get_policy_class(cfg.type).from_pretrained(path, config=cfg).eval()
+        check_finite(path / "model.safetensors", self.policy.state_dict(), "train it again with lerobot-train")
         self.preprocess, self.postprocess = make_pre_post_processors(
             cfg, pretrained_path=str(path), preprocessor_overrides={"device_processor": {"device": "cpu"}})
         self.task = task

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import errno
 import os
 import sys
 import time
@@ -22,12 +23,20 @@ from policy_composer.selector.configuration import (
     GoalScoreConfig,
     VAEConfig,
 )
-from policy_composer.tasks.spec import CAMERA_NAMES, CLEARANCE_MM, RESOLUTION, SUBTASK_COLUMNS, EnvSettings
+from policy_composer.tasks.spec import (
+    CAMERA_NAMES,
+    CLEARANCE_MM,
+    GRASP_OFFSET_MM,
+    RESOLUTION,
+    SUBTASK_COLUMNS,
+    EnvSettings,
+)
 from policy_composer.workers import usable_cores
 
 DEFAULT_GRASP_OFFSET_MM = LibrarySources.max_grasp_offset * 1000  # the expert's and the pick-up's
 MODELS = Path("results/models")
 WORLD = str(MODELS / "world")  # the world model and goal scorers' folder
+DISK_ERRORS = (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO)
 
 
 def _dataset(recipe: str) -> str:
@@ -359,7 +368,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--clearance", type=between(*CLEARANCE_MM, " mm"), default=EnvSettings.clearance_mm,
                        help="radial clearance between peg and hole, mm")
         if grasp:
-            p.add_argument("--grasp-offset", type=at_least(0, float), default=DEFAULT_GRASP_OFFSET_MM,
+            p.add_argument("--grasp-offset", type=between(*GRASP_OFFSET_MM, " mm"), default=DEFAULT_GRASP_OFFSET_MM,
                            help="max grasp offset of the gear in the gripper, mm")
         p.add_argument("--seed", type=at_least(0), default=0, help="first seed")
 
@@ -555,6 +564,7 @@ def main(argv: list[str] | None = None) -> int:
     from policy_composer.composition import RunError
     from policy_composer.data.features import DatasetError
     from policy_composer.data.interrupt import flag_interrupts
+    from policy_composer.data.lock import FolderBusy
     from policy_composer.data.recipes import RecipeError
     from policy_composer.learning.checkpoint import CheckpointError
 
@@ -564,8 +574,14 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with flag_interrupts():  # a Ctrl-C swallowed by a library is raised again at the next episode or stage
             return args.func(args)
-    except (DatasetError, RecipeError, CheckpointError, LibraryError, RunError, FileNotFoundError) as e:
+    except (DatasetError, RecipeError, CheckpointError, LibraryError, RunError, FolderBusy, FileNotFoundError) as e:
         print(f"error: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:  # the disk, not the program: one line, and the fix
+        if e.errno not in DISK_ERRORS:
+            raise
+        print(f"error: cannot write {e.filename or 'the output'}: {e.strerror or e}; free some space or write "
+              "elsewhere (--root, --out); what was saved before is intact", file=sys.stderr)
         return 2
 
 

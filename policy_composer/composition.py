@@ -3,6 +3,7 @@ paper's composed row of Table I, and videos with the running controller and the 
 
 from __future__ import annotations
 
+import errno
 import json
 from collections import Counter
 from dataclasses import asdict
@@ -11,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from policy_composer.data import atomic, interrupt
+from policy_composer.data.lock import one_writer
 from policy_composer.selector.configuration import ComposeConfig
 from policy_composer.stats import rate
 
@@ -47,8 +49,17 @@ class VideoWriter:
     def save(self, path: Path, fps: int) -> Path:
         import imageio
 
+        from policy_composer.data.features import video_frames
+
         with atomic.replacing(path) as tmp:
             imageio.mimsave(tmp, self.frames, fps=fps, macro_block_size=1)
+            try:  # the encoder can fail without a word (ffmpeg on a full disk): only a whole video goes in place
+                written = video_frames(tmp)
+            except Exception:  # noqa: BLE001  (any decoder error means the same: not a whole video)
+                written = 0
+            if written != len(self.frames):
+                raise OSError(errno.EIO, f"the video holds {written} of its {len(self.frames)} frames (is the disk "
+                              "full?); nothing was put in its place", str(path))
         return path
 
 
@@ -101,40 +112,43 @@ def compose_library(models: str | Path, sources, config: ComposeConfig, seeds: l
     from policy_composer.workers import in_process, run_episodes
 
     out = Path(out)
-    check_out(out, resume)  # first: a finished run in `out` is refused before anything loads
-    torch.set_num_threads(1)
-    world = GearWorldModel.load(models, goal_score=goal_score)
-    ids = model_ids(list(world.dynamics), sources)
-    world.check_controllers(ids)
-    settings = {"models": str(Path(models).resolve()), "controller_models": ids, "config": asdict(config),
-                "resolution": resolution, "clearance_mm": clearance_mm, "knock_out_step": knock_out_step,
-                **({"goal_score": goal_score} if goal_score != "image" else {})}  # earlier runs' settings stay valid
-    check_out(out, resume, settings)  # and a resumed one continues with its own settings
-    out.mkdir(parents=True, exist_ok=True)
-    if not (out / "run.json").is_file():
-        atomic.write_text(out / "run.json", json.dumps(settings, indent=1))
-    path = out / "episodes.jsonl"
-    kept = {e.seed: e for e in load_episodes(out)} if resume else {}
-    if kept:  # rewritten whole, without an episode cut off mid-line
-        atomic.write_text(path, "".join(json.dumps(e.to_dict()) + "\n" for e in kept.values()))
-    todo = [s for s in seeds if s not in kept]
-    setup = partial(Composer, models, sources, config, resolution, clearance_mm, knock_out_step, out,
-                    tuple(seeds[:videos]), world=world if in_process(todo, workers) else None, goal_score=goal_score)
-    with open(path, "a" if resume else "w") as log, \
-            tqdm(total=len(todo), desc="composed episodes", unit="episode", disable=not progress) as bar:
-        def save(_seed: int, episode: ComposedEpisode) -> None:
-            log.write(json.dumps(episode.to_dict()) + "\n")
-            log.flush()  # an interrupted run keeps every finished episode
-            bar.update()
-            interrupt.check()
+    with one_writer(out):  # a second run into it stops at once
+        check_out(out, resume)  # first: a finished run in `out` is refused before anything loads
+        torch.set_num_threads(1)
+        world = GearWorldModel.load(models, goal_score=goal_score)
+        ids = model_ids(list(world.dynamics), sources)
+        world.check_controllers(ids)
+        settings = {"models": str(Path(models).resolve()), "controller_models": ids, "config": asdict(config),
+                    "resolution": resolution, "clearance_mm": clearance_mm, "knock_out_step": knock_out_step,
+                    # the image goal score is the default that earlier runs' settings leave out
+                    **({"goal_score": goal_score} if goal_score != "image" else {})}
+        check_out(out, resume, settings)  # and a resumed one continues with its own settings
+        out.mkdir(parents=True, exist_ok=True)
+        if not resume or not (out / "run.json").is_file():  # a new run's settings, even over an unfinished one's
+            atomic.write_text(out / "run.json", json.dumps(settings, indent=1))
+        path = out / "episodes.jsonl"
+        kept = {e.seed: e for e in load_episodes(out)} if resume else {}
+        if kept:  # rewritten whole, without an episode cut off mid-line
+            atomic.write_text(path, "".join(json.dumps(e.to_dict()) + "\n" for e in kept.values()))
+        todo = [s for s in seeds if s not in kept]
+        setup = partial(Composer, models, sources, config, resolution, clearance_mm, knock_out_step, out,
+                        tuple(seeds[:videos]), world=world if in_process(todo, workers) else None,
+                        goal_score=goal_score)
+        with open(path, "a" if resume else "w") as log, \
+                tqdm(total=len(todo), desc="composed episodes", unit="episode", disable=not progress) as bar:
+            def save(_seed: int, episode: ComposedEpisode) -> None:
+                log.write(json.dumps(episode.to_dict()) + "\n")
+                log.flush()  # an interrupted run keeps every finished episode
+                bar.update()
+                interrupt.check()
 
-        ran = dict(zip(todo, run_episodes(setup, todo, workers, save)))
-    episodes = [kept[s] if s in kept else ran[s] for s in seeds]
-    others = [e for s, e in kept.items() if s not in seeds]  # seeds of the earlier run that this one did not ask for
-    # In seed order, as a serial run writes it (workers finish in any order).
-    atomic.write_text(path, "".join(json.dumps(e.to_dict()) + "\n" for e in [*episodes, *others]))
-    atomic.write_text(out / "summary.md", summary(episodes, config))
-    return episodes
+            ran = dict(zip(todo, run_episodes(setup, todo, workers, save)))
+        episodes = [kept[s] if s in kept else ran[s] for s in seeds]
+        others = [e for s, e in kept.items() if s not in seeds]  # the earlier run's seeds that this one did not ask
+        # In seed order, as a serial run writes it (workers finish in any order).
+        atomic.write_text(path, "".join(json.dumps(e.to_dict()) + "\n" for e in [*episodes, *others]))
+        atomic.write_text(out / "summary.md", summary(episodes, config))
+        return episodes
 
 
 def check_out(out: Path, resume: bool, settings: dict | None = None) -> None:
@@ -146,7 +160,11 @@ def check_out(out: Path, resume: bool, settings: dict | None = None) -> None:
                        f"another --out")
     stored = out / "run.json"
     if resume and settings is not None and stored.is_file():
-        own = json.loads(stored.read_text())
+        try:
+            own = json.loads(stored.read_text())
+        except (ValueError, UnicodeDecodeError) as e:
+            raise RunError(f"{stored} is not readable JSON ({e}): it holds the settings --resume continues with; "
+                           "restore it, or compose into another --out") from None
         clash = [key for key in settings if json.loads(json.dumps(settings[key])) != own.get(key)]
         if clash:
             raise RunError(f"--resume continues {out} with its own settings, but this run differs in "
@@ -234,6 +252,10 @@ def summary(episodes: list[ComposedEpisode], config: ComposeConfig) -> str:
     backed = back_offs(episodes)
     if backed:
         lines += [backed, ""]
+    broken = Counter(n for e in episodes for d in e.decisions for n in d.get("not_finite", ()))
+    if broken:
+        lines += ["Left out because its predicted goal score was not finite (NaN or Inf: check its dynamics model "
+                  "and the goal scorer): " + ", ".join(f"{n} in {c} decisions" for n, c in broken.items()) + ".", ""]
     lines += ["## Controller sequences", "", "| sequence | episodes |", "|---|---|"]
     lines += [f"| {s} | {c} |" for s, c in sequence_counts(episodes)]
     failed = [e for e in episodes if not e.success]

@@ -16,6 +16,7 @@ from pathlib import Path
 
 from policy_composer.data import interrupt, journal
 from policy_composer.data.features import read_sidecar
+from policy_composer.data.lock import one_writer
 from policy_composer.data.recipes import Recipe, RecipeError
 from policy_composer.policies.library import LibrarySources, all_names, build_library, cameras_needed, model_ids
 from policy_composer.tasks.rollout import make_env
@@ -56,35 +57,36 @@ def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None,
 
     torch.set_num_threads(1)  # the encoder threads need the second core
     root = Path(root)
-    sources = sources or LibrarySources()
-    controllers = recipe_controllers(recipe)
-    models = model_ids(controllers, sources)
-    per_unit = episodes if episodes is not None else recipe.episodes
-    if resume:
-        journal.recover(root)  # before reading the sidecar: an interrupted save may have written it already
-    previous = read_sidecar(root) if resume else {}
-    if previous:
-        check_resume(root, previous, recipe, seed, settings, models)
-        settings, seed = EnvSettings(**previous["env"]), previous["next_seed"]
-    settings, seed = settings or EnvSettings(), seed or 0
-    needed = cameras_needed(controllers, sources)
-    if not previous:  # the recipe's cameras, and any others its controllers read
-        settings = replace(settings, cameras=tuple(dict.fromkeys((*recipe.cameras, *needed))))
-    writer = LeRobotWriter(root, recipe.task, CONTROL_FREQ, settings.resolution, settings.cameras, resume=resume,
-                           metadata={"recipe": recipe.name, "env": asdict(settings), "controller_models": models,
-                                     "expert": asdict(recipe.expert), "train_episodes": recipe.train_episodes})
-    recorded = Counter(e.get("controller_name") for e in writer.episodes)  # per controller, when resuming
-    units = controllers if recipe.driver == "controllers" else (None,)
-    done = {u: min(recorded[u] if u else writer.num_episodes, per_unit) for u in units}
-    setup = partial(EpisodeRecorder, recipe, settings, sources, controllers)
-    total = per_unit * len(units)
-    with tqdm(total=total, initial=sum(done.values()), desc=recipe.name, unit="episode", disable=not progress) as bar, \
-            Workers(setup, min(workers, max(total - sum(done.values()), 1))) as pool:
-        for unit in units:
-            # The expert's episodes that fail are dropped (the recipe keeps successes): give up when most do.
-            attempts = None if unit else 3 * per_unit + 5
-            seed = _record_unit(pool, writer, unit, done[unit], per_unit, seed, attempts, partial(_saved, bar))
-    return writer.sidecar
+    with one_writer(root):  # a second recording into it stops at once
+        sources = sources or LibrarySources()
+        controllers = recipe_controllers(recipe)
+        models = model_ids(controllers, sources)
+        per_unit = episodes if episodes is not None else recipe.episodes
+        if resume:
+            journal.recover(root)  # before reading the sidecar: an interrupted save may have written it already
+        previous = read_sidecar(root) if resume else {}
+        if previous:
+            check_resume(root, previous, recipe, seed, settings, models)
+            settings, seed = EnvSettings(**previous["env"]), previous["next_seed"]
+        settings, seed = settings or EnvSettings(), seed or 0
+        needed = cameras_needed(controllers, sources)
+        if not previous:  # the recipe's cameras, and any others its controllers read
+            settings = replace(settings, cameras=tuple(dict.fromkeys((*recipe.cameras, *needed))))
+        writer = LeRobotWriter(root, recipe.task, CONTROL_FREQ, settings.resolution, settings.cameras, resume=resume,
+                               metadata={"recipe": recipe.name, "env": asdict(settings), "controller_models": models,
+                                         "expert": asdict(recipe.expert), "train_episodes": recipe.train_episodes})
+        recorded = Counter(e.get("controller_name") for e in writer.episodes)  # per controller, when resuming
+        units = controllers if recipe.driver == "controllers" else (None,)
+        done = {u: min(recorded[u] if u else writer.num_episodes, per_unit) for u in units}
+        setup = partial(EpisodeRecorder, recipe, settings, sources, controllers)
+        total, initial = per_unit * len(units), sum(done.values())
+        with tqdm(total=total, initial=initial, desc=recipe.name, unit="episode", disable=not progress) as bar, \
+                Workers(setup, min(workers, max(total - initial, 1))) as pool:
+            for unit in units:
+                # The expert's episodes that fail are dropped (the recipe keeps successes): give up when most do.
+                attempts = None if unit else 3 * per_unit + 5
+                seed = _record_unit(pool, writer, unit, done[unit], per_unit, seed, attempts, partial(_saved, bar))
+        return writer.sidecar
 
 
 def check_resume(root: Path, previous: dict, recipe: Recipe, seed: int | None, settings: EnvSettings | None,

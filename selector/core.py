@@ -34,6 +34,7 @@ class Decision:
     choice: torch.Tensor  # (B,) index into names; -1 where no controller may start
     scores: torch.Tensor  # (B, W) mean predicted goal score; -inf outside the initiation set
     predicted: torch.Tensor | None = None  # (B, W, K, *S) sampled end states, if kept
+    broken: torch.Tensor | None = None  # (B, W) applicable, but its predicted score is not finite: never chosen
 
     def chosen(self, b: int = 0) -> str | None:
         c = int(self.choice[b])
@@ -41,8 +42,9 @@ class Decision:
 
     def log(self, b: int = 0) -> dict:
         """One decision as a plain record: the choice and every candidate's score (None: not applicable)."""
-        scores = {n: (None if torch.isinf(s) else round(float(s), 6)) for n, s in zip(self.names, self.scores[b])}
-        return {"choice": self.chosen(b), "scores": scores}
+        scores = {n: (round(float(s), 6) if torch.isfinite(s) else None) for n, s in zip(self.names, self.scores[b])}
+        broken = [] if self.broken is None else [n for n, x in zip(self.names, self.broken[b]) if x]
+        return {"choice": self.chosen(b), "scores": scores, **({"not_finite": broken} if broken else {})}
 
 
 class Selector:
@@ -81,9 +83,10 @@ class Selector:
         if applicable.shape != (B, W):
             raise ValueError(f"applicable must be (batch, controllers) = ({B}, {W}), got {tuple(applicable.shape)}")
         scores, predicted = self.evaluate(states, applicable)
-        choice = scores.argmax(dim=1)  # ties go to the first controller in library order
-        choice[~applicable.any(dim=1)] = -1
-        return Decision(self.names, choice, scores, predicted)
+        broken = applicable & ~torch.isfinite(scores)  # a model that computes NaN or Inf: reported, not ranked
+        choice = scores.masked_fill(broken, float("-inf")).argmax(dim=1)  # ties: the first in library order
+        choice[~(applicable & ~broken).any(dim=1)] = -1
+        return Decision(self.names, choice, scores, predicted, broken)
 
     def evaluate(self, states: torch.Tensor, applicable: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
         """E[G(D_w^n(s))] for every applicable (state, controller), -inf elsewhere, (B, W); and the sampled futures

@@ -52,6 +52,11 @@ def train_world_model(rollouts: str | Path, demos: str | Path, out: str | Path, 
     camera, size = vae_config.camera, vae_config.image_size
     check_recipe(rollouts, "gear-controller-rollouts", "the dynamics models")
     check_recipe(demos, "gear-full-task-demos", "the VAE")
+    recorded = read_sidecar(rollouts).get("controllers", [])
+    unknown = [c for c in controllers or () if c not in recorded]
+    if unknown:  # before any training: nothing would be trained for them
+        raise DatasetError(f"{rollouts} holds no rollouts of {', '.join(unknown)}: --controllers takes the "
+                           f"controllers it recorded, {', '.join(recorded) or 'none'}")
     ro = load_frames(rollouts, (camera,), size, required={"controller": (1,)}, progress=progress)
     timings = {}
     if vae is None:

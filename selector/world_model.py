@@ -31,10 +31,14 @@ def check_trained_together(vae: Path, made_with: dict[Path, dict[str, str]]) -> 
     """Refuse dynamics models and goal scores (each part's `trained_with`) trained with another VAE than `vae` (a
     retraining cut short, or folders mixed by hand): their latents or reconstructions would not be this VAE's."""
     vae_id = weights_id(vae)
+    again = "train the world model again as one: `policy-composer train world-model`, then `train goal-score`"
     for part, parts in made_with.items():
-        if parts.get("vae", vae_id) != vae_id:
-            raise CheckpointError(f"{part} was trained with another VAE than the one in {vae}; train the world model "
-                                  f"again as one: `policy-composer train world-model`, then `train goal-score`")
+        if "vae" not in parts:
+            raise CheckpointError(f"{part / 'config.json'} does not name the VAE it was trained with (trained before "
+                                  f"the check, without a VAE, or edited), so it cannot be shown to belong to {vae}; "
+                                  f"{again}")
+        if parts["vae"] != vae_id:
+            raise CheckpointError(f"{part} was trained with another VAE than the one in {vae}; {again}")
 
 
 class GearWorldModel:

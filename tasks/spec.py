@@ -37,6 +37,9 @@ GOAL_FLAGS = ("gear_grasped", "gear_lifted", "gear_at_peg", "success")
 # What the task can be made with: the radial clearance the gear's hole leaves around the peg (below 0.5 mm the
 # gear jams, above 6 mm it tips over the peg), and square camera images.
 CLEARANCE_MM = (0.5, 6.0)
+# How far off the fingers' centre a grasp may hold the gear: past the small gear's tooth tips (19 mm from its axis)
+# the fingers close beside it.
+GRASP_OFFSET_MM = (0.0, 19.0)
 RESOLUTION = (16, 512)
 
 

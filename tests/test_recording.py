@@ -177,7 +177,7 @@ def test_bad_input_is_named(insertion_demos, tmp_path):
         open_dataset(old)
     assert importlib.metadata.version("lerobot") == LEROBOT_VERSION  # the checks name the release installed
     env = gym.make("GearAssembly-v1", obs_mode="rgb", camera_width=32, camera_height=32)
-    with pytest.raises(FileExistsError, match="--resume"):
+    with pytest.raises(DatasetError, match="--resume"):
         LeRobotRecorder(env, insertion_demos, task="x")
     with pytest.raises(DatasetError, match="cannot resume"):
         LeRobotRecorder(env, insertion_demos, task="x", resume=True)

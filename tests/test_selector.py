@@ -101,6 +101,9 @@ def test_parts_not_trained_together_are_refused(world, controller_rollouts, tmp_
     train_vae(images, replace(model.vae.config, epochs=1, seed=1), root / "vae", progress=False)
     with pytest.raises(CheckpointError, match="was trained with another VAE than the one in"):
         GearWorldModel.load(root)
+    dynamics.write_text(json.dumps({k: v for k, v in config.items() if k != "trained_with"}))  # an older config
+    with pytest.raises(CheckpointError, match="mp_insert/config.json does not name the VAE it was trained with"):
+        GearWorldModel.load(root)
 
 
 def test_a_world_model_training_cut_short_goes_on_where_it_stopped(world, controller_rollouts, full_task_demos,
@@ -330,3 +333,46 @@ def test_the_latent_goal_score_tracks_progress_without_decoding(world, full_task
     with pytest.raises(CheckpointError, match="no latent goal score checkpoint in .*train one with `policy-composer "
                                               "train goal-score`"):
         GearWorldModel.load(older, goal_score="latent")
+
+
+def test_poisoned_weights_are_refused_before_anything_runs(world, tmp_path):
+    """A dynamics model or goal scorer whose safetensors hold NaN or Inf: the load names the file, instead of a
+    selector ranking NaN and a user reading a failed controller."""
+    import shutil
+
+    from safetensors.torch import load_file, save_file
+
+    camera = json.loads((world[0] / "vae" / "config.json").read_text())["camera"]  # the goal score it loads
+    for part, value in (("dynamics/mp_insert", float("nan")), (f"goal_score/{camera}", float("inf"))):
+        root = Path(shutil.copytree(world[0], tmp_path / part.replace("/", "_")))
+        weights = root / part / "model.safetensors"
+        tensors = load_file(str(weights))
+        name = next(iter(tensors))
+        tensors[name].view(-1)[0] = value
+        save_file(tensors, str(weights))
+        with pytest.raises(CheckpointError, match=f"{weights} holds values that are not finite .*{name}"):
+            GearWorldModel.load(root)
+
+
+def test_the_selector_never_chooses_a_controller_whose_score_is_not_finite():
+    """A model computing NaN is reported in the decision's log and left out; argmax alone would rank NaN first."""
+    from policy_composer.selector.core import Selector
+
+    class Stay:
+        def step(self, states, generator):
+            return states
+
+    class Broken:
+        def step(self, states, generator):
+            return torch.full_like(states, float("nan"))
+
+    class Value:
+        def score(self, states, generator):
+            return states[:, 0]
+
+    selector = Selector({"broken": Broken(), "stay": Stay()}, Value(), horizon=2, samples=3, seed=0)
+    decision = selector.decide(torch.tensor([[0.4], [0.9]]))
+    assert [decision.chosen(b) for b in (0, 1)] == ["stay", "stay"]
+    assert decision.log(0) == {"choice": "stay", "scores": {"broken": None, "stay": 0.4}, "not_finite": ["broken"]}
+    alone = Selector({"broken": Broken()}, Value(), horizon=1, samples=1, seed=0).decide(torch.tensor([[0.5]]))
+    assert alone.chosen(0) is None  # nothing it may run: the episode says so rather than running noise

@@ -107,13 +107,15 @@ def check_features(root: str | Path, info: dict, required: dict[str, tuple[int, 
 
 
 def check_files(root: Path, info: dict) -> None:
-    """Raise DatasetError naming the first parquet file that does not read, or the video files that are missing."""
+    """Raise DatasetError naming the first parquet file whose rows do not read, the video files that are missing, or
+    the videos that do not hold their episodes' frames."""
+    import pyarrow as pa
     import pyarrow.parquet as pq
 
     for path in sorted((root / "data").rglob("*.parquet")) + sorted((root / "meta").rglob("*.parquet")):
         try:
-            pq.read_metadata(path)
-        except (OSError, ValueError) as e:
+            pq.read_table(path)  # every row: a file damaged in the middle keeps a readable footer
+        except (OSError, ValueError, pa.ArrowException) as e:
             raise DatasetError(f"{path} is not a readable parquet file ({e}); {REPAIR}") from None
     missing = missing_videos(root, info)
     if missing:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -15,6 +16,17 @@ DRIVERS = ("expert", "controllers")
 
 class RecipeError(ValueError):
     pass
+
+
+PLAIN_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
+
+
+def check_plain_name(name: object, what: str) -> None:
+    """A recipe's name is a dataset's default folder name: a plain name, so that it cannot lead out of its folder
+    (a path goes in --root)."""
+    if not isinstance(name, str) or not PLAIN_NAME.match(name) or ".." in name:
+        raise RecipeError(f"{what} name {name!r} is not a plain name (letters, digits, '.', '_' or '-', no leading "
+                          "dot, no '..'): name it plainly and give a path with --root")
 
 
 @dataclass(frozen=True)
@@ -43,6 +55,7 @@ class Recipe:
     expert: ExpertSettings = field(default_factory=ExpertSettings)
 
     def __post_init__(self):
+        check_plain_name(self.name, "recipe")
         if self.driver not in DRIVERS:
             raise RecipeError(f"recipe {self.name}: driver {self.driver!r} is not one of {DRIVERS}")
         if set(self.cameras) - set(CAMERA_NAMES) or not self.cameras:
@@ -87,7 +100,11 @@ def load_recipe(name_or_path: str | Path) -> Recipe:
     if not path.is_file():
         raise RecipeError(f"no recipe {str(name_or_path)!r}; known recipes: {', '.join(available_recipes())} "
                           f"(or give the path of a .toml recipe)")
-    raw = tomllib.loads(path.read_text())
+    try:
+        raw = tomllib.loads(path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise RecipeError(f"recipe {path} is not a readable TOML file ({e}); see datasets/recipes/ for the "
+                          "format") from None
     known = {f.name for f in fields(Recipe)}
     unknown = set(raw) - known
     if unknown:

@@ -175,7 +175,7 @@ class LeRobotWriter:
             journal.recover(self.root)
         if self.root.exists():
             if not resume:
-                raise FileExistsError(f"{self.root} already exists ({self._describe()}); pass --resume to append "
+                raise DatasetError(f"{self.root} already exists ({self._describe()}); pass --resume to append "
                                       f"to it, or choose another --root")
             self._check_compatible(read_info(self.root))
             self.sidecar = read_sidecar(self.root)
@@ -214,11 +214,8 @@ class LeRobotWriter:
 
     def save_episode(self, frames: list[dict], success: bool, **episode_info) -> None:
         """Label `frames` (from a `FrameBuffer`) and write them as one episode; all or nothing, even on kill -9.
-        An episode whose videos do not hold exactly its frames is rolled back, and a DatasetError says so."""
-        import datasets
-
-        LosslessDataset = _lossless_dataset_class()
-
+        An episode that cannot be written whole (a full disk, videos short of its frames) is rolled back, and a
+        DatasetError says so."""
         if not frames:
             raise ValueError("no frames to save: step the env with recording on first")
         T = len(frames)
@@ -227,26 +224,35 @@ class LeRobotWriter:
                    "next.done": np.array([t == T - 1]), "task": self.task} for t, frame in enumerate(frames)]
         with interrupt.held_back(), _quiet_lerobot():  # an episode is written whole
             journal.begin(self.root)
-            if self.root.exists():  # lerobot's resume path: this episode goes into new files
-                dataset = LosslessDataset.resume(self.repo_id, root=self.root, **self.video)
-            else:
-                dataset = LosslessDataset.create(self.repo_id, fps=self.fps, features=self.features, root=self.root,
-                                                 robot_type="panda_pair", use_videos=True, **self.video)
-            datasets.disable_progress_bars()  # after opening: lerobot's loader turns them back on
-            for frame in frames:
-                dataset.add_frame(frame)
-            dataset.save_episode()
-            dataset.finalize()
+            saved = self.num_episodes
             try:
-                info = read_info(self.root)
-                check_videos(self.root, info, episodes=[info["total_episodes"] - 1])
-            except DatasetError as e:
+                self._write(frames)
+                self.sidecar["episodes"].append({"success": bool(success), "length": T, **episode_info})
+                (self.root / SIDECAR).write_text(json.dumps(self.sidecar, indent=1))
+            except (OSError, RuntimeError, DatasetError) as e:  # a full disk, an encoder's error, a short video
+                del self.sidecar["episodes"][saved:]
                 journal.recover(self.root)
-                raise DatasetError(f"episode {self.num_episodes} was not saved, and the recording stopped: "
-                                   f"{e}") from None
-            self.sidecar["episodes"].append({"success": bool(success), "length": T, **episode_info})
-            (self.root / SIDECAR).write_text(json.dumps(self.sidecar, indent=1))
+                raise DatasetError(f"episode {saved} was not saved, and the recording stopped ({e}); "
+                                   f"{self.root} holds the episodes saved before it") from None
             journal.commit(self.root)
+
+    def _write(self, frames: list[dict]) -> None:
+        """Add the labelled frames as one LeRobot episode and check that its videos hold every one of them."""
+        import datasets
+
+        LosslessDataset = _lossless_dataset_class()
+        if self.root.exists():  # lerobot's resume path: this episode goes into new files
+            dataset = LosslessDataset.resume(self.repo_id, root=self.root, **self.video)
+        else:
+            dataset = LosslessDataset.create(self.repo_id, fps=self.fps, features=self.features, root=self.root,
+                                             robot_type="panda_pair", use_videos=True, **self.video)
+        datasets.disable_progress_bars()  # after opening: lerobot's loader turns them back on
+        for frame in frames:
+            dataset.add_frame(frame)
+        dataset.save_episode()
+        dataset.finalize()
+        info = read_info(self.root)
+        check_videos(self.root, info, episodes=[info["total_episodes"] - 1])
 
 
 class LeRobotRecorder(FrameBuffer):

@@ -111,8 +111,22 @@ def load_checkpoint(path: str | Path, config_cls: type[C], build: Callable[[C], 
     model = build(config)
     weights = Path(path) / "model.safetensors"
     try:
-        model.load_state_dict(load_file(str(weights)))
+        tensors = load_file(str(weights))
+        model.load_state_dict(tensors)
     except Exception as e:  # a truncated or foreign file: safetensors, or torch on missing and unexpected keys
         raise CheckpointError(f"{weights} does not hold the weights of this {what} "
                               f"({str(e).splitlines()[0][:200]}); train it again with `{train_hint}`") from None
+    check_finite(weights, tensors, f"train it again with `{train_hint}`")
     return model.eval()
+
+
+def check_finite(path: Path, tensors: dict, fix: str) -> None:
+    """Refuse weights holding NaN or Inf (a damaged file, or a training that diverged): a model computing with them
+    runs, but every decision made from it is noise."""
+    import torch
+
+    as_tensors = {name: torch.as_tensor(t) for name, t in tensors.items()}
+    bad = [name for name, t in as_tensors.items() if t.is_floating_point() and not torch.isfinite(t).all()]
+    if bad:
+        raise CheckpointError(f"{path} holds values that are not finite (NaN or Inf) in {len(bad)} tensor(s) "
+                              f"({', '.join(bad[:3])}); {fix}")
