@@ -40,6 +40,7 @@ def run_cli(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:
      "argument --subtasks: must be one or more of pick,move,insert,full, comma-separated, not 'pick,fly'"),
     (("compose", "--workers", "0"), "argument --workers: must be at least 1, not 0"),
     (("compose", "--clearance", "0.002"), "argument --clearance: must be between 0.5 and 6 mm, not 0.002"),
+    (("expert", "--grasp-offset", "1e9"), "argument --grasp-offset: must be between 0 and 19 mm, not 1e9"),
     (("record", "gear-insertion-demos", "--resolution", "8"), "argument --resolution: must be between 16 and 512"),
     (("compose", "--horizon", "0"), "argument --horizon: must be at least 1, not 0"),
     (("compose", "--samples", "many"), "argument --samples: must be a whole number, not 'many'"),

@@ -290,7 +290,7 @@ def drop_controller(root: str | Path, controller: str) -> int:
 
     from lerobot.datasets.dataset_tools import delete_episodes
 
-    from policy_composer.data.features import SIDECAR, open_dataset
+    from policy_composer.data.features import SIDECAR, data_digests, open_dataset
 
     root = Path(root)
     journal.recover(root)
@@ -310,6 +310,7 @@ def drop_controller(root: str | Path, controller: str) -> int:
     shutil.rmtree(new_root, ignore_errors=True)
     delete_episodes(open_dataset(root), drop, output_dir=new_root, repo_id=sidecar.get("repo_id"))
     sidecar["episodes"] = [e for i, e in enumerate(sidecar["episodes"]) if i not in set(drop)]
+    sidecar["data_digests"] = data_digests(new_root)
     (new_root / SIDECAR).write_text(json.dumps(sidecar, indent=1))
     old_root = root.with_name(root.name + ".dropped")
     root.rename(old_root)

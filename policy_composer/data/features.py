@@ -117,12 +117,28 @@ def check_files(root: Path, info: dict) -> None:
             pq.read_table(path)  # every row: a file damaged in the middle keeps a readable footer
         except (OSError, ValueError, pa.ArrowException) as e:
             raise DatasetError(f"{path} is not a readable parquet file ({e}); {REPAIR}") from None
+    recorded = read_sidecar(root).get("data_digests", {})  # parquet has no checksums: damaged values still read
+    changed = [rel for rel, digest in data_digests(root).items() if rel in recorded and recorded[rel] != digest]
+    if changed:
+        raise DatasetError(f"{root / changed[0]} does not hold what was recorded (its SHA-256 differs from the one "
+                           f"saved with it); {REPAIR}")
     missing = missing_videos(root, info)
     if missing:
         shown = ", ".join(missing[:3]) + (", ..." if len(missing) > 3 else "")
         raise DatasetError(f"{root} is missing {len(missing)} video file(s) its episodes point to ({shown}); "
                            f"{REPAIR}")
     check_videos(root, info)
+
+
+def data_digests(root: Path) -> dict[str, str]:
+    """Each data file's SHA-256, by its path in the dataset (kept in the sidecar when an episode is saved)."""
+    import hashlib
+
+    digests = {}
+    for path in sorted((root / "data").rglob("*.parquet")):
+        with open(path, "rb") as f:
+            digests[str(path.relative_to(root))] = hashlib.file_digest(f, "sha256").hexdigest()
+    return digests
 
 
 def check_videos(root: Path, info: dict, episodes: list[int] | None = None) -> None:

@@ -46,8 +46,7 @@ def one_writer(folder: str | Path) -> Iterator[None]:
         os.close(fd)
         raise FolderBusy(f"{folder} is being written by another process (pid {holder}); wait until it ends, or "
                          "write to another folder") from None
-    os.ftruncate(fd, 0)
-    os.pwrite(fd, str(os.getpid()).encode(), 0)
+    os.pwrite(fd, f"{os.getpid():<20}".encode(), 0)  # fixed width, in place: no new block on a full disk
     _held[folder] = 1
     try:
         yield

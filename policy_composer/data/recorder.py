@@ -30,6 +30,7 @@ from policy_composer.data.features import (
     SIDECAR,
     DatasetError,
     check_videos,
+    data_digests,
     dataset_features,
     image_key,
     read_info,
@@ -227,6 +228,7 @@ class LeRobotWriter:
             saved = self.num_episodes
             try:
                 self._write(frames)
+                self.sidecar["data_digests"] = data_digests(self.root)
                 self.sidecar["episodes"].append({"success": bool(success), "length": T, **episode_info})
                 (self.root / SIDECAR).write_text(json.dumps(self.sidecar, indent=1))
             except (OSError, RuntimeError, DatasetError) as e:  # a full disk, an encoder's error, a short video

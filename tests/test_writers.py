@@ -1,0 +1,182 @@
+"""One writer at a time, and nothing mistyped, damaged or out of space runs: each refused with one line, exit 2,
+and what was written before left as it was."""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import tree_digest
+
+from policy_composer.composition import RunError, VideoWriter, check_out, compose_library
+from policy_composer.data.features import read_info
+from policy_composer.data.lock import FolderBusy, lock_path, one_writer
+from policy_composer.data.recipes import load_recipe
+from policy_composer.selector.configuration import ComposeConfig
+
+BIN = Path(sys.executable).parent
+HOLD = "import sys, time; from policy_composer.data.lock import one_writer\nwith one_writer(sys.argv[1]):\n" \
+       "    print('held', flush=True); time.sleep(600)"
+
+
+def cli(*args: str, cwd: Path | None = None, timeout: int = 300) -> subprocess.CompletedProcess:
+    return subprocess.run([str(BIN / "policy-composer"), *args], cwd=cwd, capture_output=True, text=True,
+                          timeout=timeout, env={**os.environ, "HF_HUB_OFFLINE": "1"})
+
+
+def one_line_error(res: subprocess.CompletedProcess) -> str:
+    assert res.returncode == 2, res.stdout + res.stderr
+    assert "Traceback" not in res.stderr, res.stderr
+    lines = res.stderr.strip().splitlines()  # a progress bar may stand above it
+    assert [line for line in lines if line.startswith("error:")] == lines[-1:], res.stderr
+    return lines[-1]
+
+
+@contextlib.contextmanager
+def holder(folder: Path):
+    """Another process holding `folder`'s writer lock."""
+    proc = subprocess.Popen([sys.executable, "-c", HOLD, str(folder)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "held"
+        yield proc
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def test_a_second_writer_is_refused_at_once_and_the_first_ones_data_stays(insertion_demos, tmp_path):
+    root = tmp_path / "demos"
+    shutil.copytree(insertion_demos, root)
+    before = tree_digest(root)
+    with holder(root) as proc:
+        t0 = time.perf_counter()
+        line = one_line_error(cli("record", "gear-insertion-demos", "--episodes", "4", "--resume", "--root",
+                                  str(root)))
+        assert f"{root} is being written by another process (pid {proc.pid})" in line
+        assert time.perf_counter() - t0 < 60  # at once: no episode was run
+        with pytest.raises(FolderBusy, match=f"pid {proc.pid}"):
+            compose_library(tmp_path / "no-models", None, ComposeConfig(), [0], root)
+        assert cli("dataset", "info", str(root)).returncode == 0  # readers are not blocked
+    assert tree_digest(root) == before
+
+
+def test_a_killed_writer_leaves_no_stale_lock(tmp_path):
+    folder = tmp_path / "out"
+    with holder(folder) as proc:
+        with pytest.raises(FolderBusy), one_writer(folder):
+            pass
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+        with one_writer(folder), one_writer(folder):  # the kernel released it; this process may nest its own
+            assert lock_path(folder.resolve()).read_text().strip() == str(os.getpid())
+
+
+@pytest.mark.parametrize("text, message", [
+    ('name = "../../escaped_by_name"\n', "recipe name '../../escaped_by_name' is not a plain name"),
+    ('name = ".hidden"\n', "recipe name '.hidden' is not a plain name"),
+    ("name = [unclosed\n", "is not a readable TOML file"),
+    (b"\x89PNG\r\n\x1a\n\x00\xff", "is not a readable TOML file"),
+])
+def test_a_bad_recipe_file_is_refused_before_anything_is_written(tmp_path, text, message):
+    base = load_recipe("gear-insertion-demos")
+    recipe = tmp_path / "a" / "b" / "recipe.toml"
+    recipe.parent.mkdir(parents=True)
+    if isinstance(text, bytes):
+        recipe.write_bytes(text)
+    else:  # the rest of a valid recipe, so that only the name is wrong
+        recipe.write_text(text + "".join(f'{k} = {json.dumps(getattr(base, k))}\n'
+                                         for k in ("description", "task", "episodes", "driver", "start")))
+    line = one_line_error(cli("record", str(recipe), "--episodes", "1", cwd=recipe.parent))
+    assert message in line and ("TOML" not in message or str(recipe) in line)
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["a", "b", "recipe.toml"]
+
+
+@contextlib.contextmanager
+def small_disk(path: Path, size: str, read_only: bool = False):
+    """A tmpfs of `size` at `path` (root only: skipped where mounting is not allowed)."""
+    path.mkdir(parents=True)
+    options = f"size={size}" + (",ro" if read_only else "")
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(path)], capture_output=True).returncode:
+        pytest.skip("mounting a small file system needs root")
+    try:
+        yield path
+    finally:
+        subprocess.run(["umount", "-l", str(path)], check=True)
+
+
+def test_a_full_disk_mid_episode_leaves_the_dataset_as_it_was(tmp_path):
+    with small_disk(tmp_path / "disk", "64m") as disk:
+        root = disk / "demos"
+        res = cli("record", "gear-insertion-demos", "--episodes", "1", "--resolution", "32", "--root", str(root))
+        assert res.returncode == 0, res.stderr[-2000:]
+        before = tree_digest(root)
+        # The disk fills up, but for room to begin the next episode's save.
+        with open(disk / "filler", "wb", buffering=0) as f:
+            with contextlib.suppress(OSError):
+                while True:
+                    f.write(b"\0" * 4096)
+                    f.flush()
+            f.truncate(f.tell() - 64 * 1024)
+        line = one_line_error(cli("record", "gear-insertion-demos", "--episodes", "2", "--resume", "--root",
+                                  str(root)))
+        assert "No space left on device" in line, line
+        assert tree_digest(root) == before and read_info(root)["total_episodes"] == 1
+        (disk / "filler").unlink()
+        assert cli("dataset", "info", str(root)).returncode == 0
+
+
+def test_a_read_only_disk_is_one_line(tmp_path):
+    with small_disk(tmp_path / "ro", "1m", read_only=True) as disk:
+        line = one_line_error(cli("record", "gear-insertion-demos", "--episodes", "1", "--root",
+                                  str(disk / "demos")))
+        assert "Read-only file system" in line and str(disk) in line
+
+
+def test_a_damaged_data_file_is_named_by_dataset_info(insertion_demos, tmp_path):
+    """Damage in the middle of a parquet file, its footer intact: its values still read (parquet keeps no
+    checksums), but not the digest saved with it, and info says which file."""
+    root = tmp_path / "demos"
+    shutil.copytree(insertion_demos, root)
+    data = sorted((root / "data").rglob("*.parquet"))[0]
+    raw = bytearray(data.read_bytes())
+    raw[len(raw) // 3:len(raw) // 3 + 64] = b"\xff" * 64
+    data.write_bytes(bytes(raw))
+    line = one_line_error(cli("dataset", "info", str(root)))
+    assert f"{data} does not hold what was recorded (its SHA-256 differs" in line
+
+
+def test_world_model_controllers_are_those_recorded(controller_rollouts, full_task_demos, tmp_path):
+    line = one_line_error(cli("train", "world-model", "--rollouts", str(controller_rollouts), "--demos",
+                              str(full_task_demos), "--controllers", "mp_pick,nosuch", "--out", str(tmp_path / "w")))
+    assert "holds no rollouts of nosuch: --controllers takes the controllers it recorded, mp_pick, mp_insert" in line
+    assert not (tmp_path / "w").exists()
+
+
+def test_run_files_that_do_not_read_or_no_longer_fit(tmp_path):
+    out = tmp_path / "compose"
+    out.mkdir()
+    (out / "run.json").write_text("{not json")
+    with pytest.raises(RunError, match="run.json is not readable JSON .* compose into another --out"):
+        check_out(out, resume=True, settings={"resolution": 64})
+
+
+def test_a_video_the_encoder_did_not_finish_is_not_put_in_place(tmp_path, monkeypatch):
+    """As ffmpeg on a full disk: the writer returns, the file is truncated. Nothing replaces the target."""
+    import imageio
+
+    video = VideoWriter("head")
+    video.frames = [np.zeros((32, 32, 3), np.uint8)] * 10
+    monkeypatch.setattr(imageio, "mimsave", lambda path, frames, **kw: Path(path).write_bytes(b"\x00\x00\x00\x18ftyp"))
+    with pytest.raises(OSError, match="holds 0 of its 10 frames") as caught:
+        video.save(tmp_path / "composed.mp4", fps=20)
+    assert caught.value.errno == errno.EIO and not any(tmp_path.iterdir())
