@@ -122,10 +122,7 @@ def compose_library(models: str | Path, sources, config: ComposeConfig, seeds: l
                     "resolution": resolution, "clearance_mm": clearance_mm, "knock_out_step": knock_out_step,
                     # the image goal score is the default that earlier runs' settings leave out
                     **({"goal_score": goal_score} if goal_score != "image" else {})}
-        check_out(out, resume, settings)  # and a resumed one continues with its own settings
-        out.mkdir(parents=True, exist_ok=True)
-        if not resume or not (out / "run.json").is_file():  # a new run's settings, even over an unfinished one's
-            atomic.write_text(out / "run.json", json.dumps(settings, indent=1))
+        begin_run(out, resume, settings)
         path = out / "episodes.jsonl"
         kept = {e.seed: e for e in load_episodes(out)} if resume else {}
         if kept:  # rewritten whole, without an episode cut off mid-line
@@ -169,6 +166,15 @@ def check_out(out: Path, resume: bool, settings: dict | None = None) -> None:
         if clash:
             raise RunError(f"--resume continues {out} with its own settings, but this run differs in "
                            f"{', '.join(clash)} (see {stored}): give the same options, or another --out")
+
+
+def begin_run(out: Path, resume: bool, settings: dict) -> None:
+    """A resumed run continues with its own settings (others are refused); a new run writes its own, over those of
+    an earlier run that was stopped before its first episode."""
+    check_out(out, resume, settings)
+    out.mkdir(parents=True, exist_ok=True)
+    if not resume or not (out / "run.json").is_file():
+        atomic.write_text(out / "run.json", json.dumps(settings, indent=1))
 
 
 def load_episodes(out: Path) -> list[ComposedEpisode]:

@@ -15,6 +15,7 @@ import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
+from policy_composer.data.lock import one_writer
 from policy_composer.pipeline import Stage, StageRecord, run_stages
 from policy_composer.tasks.spec import CAMERA_NAMES as CAMERAS
 
@@ -168,8 +169,9 @@ def run_demo(profile: str = "quick", out: str | Path = "results",
     p = PROFILES[profile]
     out = Path(out)
     t0 = time.perf_counter()
-    records = run_stages(stages(p, workers), out / "pipeline")
-    report = write_report(out, p, records, time.perf_counter() - t0)
+    with one_writer(out):  # a second main job into the same folder stops at once
+        records = run_stages(stages(p, workers), out / "pipeline")
+        report = write_report(out, p, records, time.perf_counter() - t0)
     return records, report
 
 

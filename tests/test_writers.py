@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from conftest import tree_digest
 
-from policy_composer.composition import RunError, VideoWriter, check_out, compose_library
+from policy_composer.composition import RunError, VideoWriter, begin_run, compose_library
 from policy_composer.data.features import read_info
 from policy_composer.data.lock import FolderBusy, lock_path, one_writer
 from policy_composer.data.recipes import load_recipe
@@ -167,7 +167,20 @@ def test_run_files_that_do_not_read_or_no_longer_fit(tmp_path):
     out.mkdir()
     (out / "run.json").write_text("{not json")
     with pytest.raises(RunError, match="run.json is not readable JSON .* compose into another --out"):
-        check_out(out, resume=True, settings={"resolution": 64})
+        begin_run(out, resume=True, settings={"resolution": 64})
+    # A run killed right after writing its settings: the next new run there is labelled with its own.
+    (out / "run.json").write_text(json.dumps({"config": {"horizon": 3}}))
+    begin_run(out, resume=False, settings={"config": {"horizon": 10}})
+    assert json.loads((out / "run.json").read_text()) == {"config": {"horizon": 10}}
+    with pytest.raises(RunError, match="differs in config"):
+        begin_run(out, resume=True, settings={"config": {"horizon": 5}})
+
+
+def test_recording_over_a_dataset_without_resume_is_one_line(insertion_demos, tmp_path):
+    root = tmp_path / "demos"
+    shutil.copytree(insertion_demos, root)
+    line = one_line_error(cli("record", "gear-insertion-demos", "--episodes", "1", "--root", str(root)))
+    assert f"{root} already exists (2 episodes); pass --resume to append to it" in line
 
 
 def test_a_video_the_encoder_did_not_finish_is_not_put_in_place(tmp_path, monkeypatch):

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from policy_composer.data import journal
 from policy_composer.data.features import DatasetError, check_files, read_info, read_sidecar
+from policy_composer.data.lock import one_writer
 from policy_composer.tasks.spec import ENV_ID, STATE_NAMES
 
 REPO_ID = re.compile(r"^[A-Za-z0-9][\w.-]*/[A-Za-z0-9][\w.-]*$")
@@ -285,6 +286,12 @@ def drop_controller(root: str | Path, controller: str) -> int:
     """Remove one controller's episodes from a controller-rollouts dataset (to record them again after
     retraining it, with `record --resume`); returns how many were removed. LeRobot's `delete_episodes` writes
     the new dataset beside the old one, which is swapped in only once complete."""
+    root = Path(root)
+    with one_writer(root):
+        return _drop_controller(root, controller)
+
+
+def _drop_controller(root: Path, controller: str) -> int:
     import json
     import shutil
 
@@ -292,7 +299,6 @@ def drop_controller(root: str | Path, controller: str) -> int:
 
     from policy_composer.data.features import SIDECAR, data_digests, open_dataset
 
-    root = Path(root)
     journal.recover(root)
     info, sidecar = read_info(root), read_sidecar(root)
     unfit = provenance(info, sidecar)
