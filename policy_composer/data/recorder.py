@@ -177,7 +177,7 @@ class LeRobotWriter:
         if self.root.exists():
             if not resume:
                 raise DatasetError(f"{self.root} already exists ({self._describe()}); pass --resume to append "
-                                      f"to it, or choose another --root")
+                                   f"to it, or choose another --root")
             self._check_compatible(read_info(self.root))
             self.sidecar = read_sidecar(self.root)
         else:
