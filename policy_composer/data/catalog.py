@@ -7,7 +7,7 @@ import re
 from pathlib import Path
 
 from policy_composer.data import journal
-from policy_composer.data.features import DatasetError, check_files, read_info, read_sidecar
+from policy_composer.data.features import DatasetError, read_info, read_sidecar, verify_dataset
 from policy_composer.data.lock import one_writer
 from policy_composer.tasks.spec import ENV_ID, STATE_NAMES
 
@@ -52,9 +52,7 @@ def provenance(info: dict, sidecar: dict) -> str | None:
 def summarize(root: str | Path) -> dict:
     """What `policy-composer dataset info` prints: size, features, cameras, fps, success rate, provenance."""
     root = Path(root)
-    journal.recover(root)
-    info = read_info(root)
-    check_files(root, info)
+    info = verify_dataset(root)
     sidecar = read_sidecar(root)
     features = info["features"]
     cameras = {k.removeprefix("observation.images."): tuple(v["shape"]) for k, v in features.items()

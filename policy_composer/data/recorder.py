@@ -19,6 +19,7 @@ import json
 import queue
 import warnings
 from contextlib import contextmanager
+from functools import cache
 from pathlib import Path
 
 import gymnasium as gym
@@ -122,6 +123,7 @@ class FrameBuffer(gym.Wrapper):
         return frames
 
 
+@cache
 def _lossless_dataset_class():
     """LeRobotDataset whose streaming encoder never drops a frame (lerobot is imported only when writing)."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
