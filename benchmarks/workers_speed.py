@@ -26,9 +26,9 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
 
 def record(recipe: str, root: Path, episodes: int, resolution: int, workers: int, **changes) -> dict:
+    from policy_composer.app.record import record_recipe
     from policy_composer.data.recipes import load_recipe
     from policy_composer.policies.library import LibrarySources
-    from policy_composer.record import record_recipe
     from policy_composer.tasks.spec import EnvSettings
 
     sidecar = record_recipe(replace(load_recipe(recipe), **changes), root, episodes=episodes,
@@ -38,7 +38,7 @@ def record(recipe: str, root: Path, episodes: int, resolution: int, workers: int
 
 
 def table(trials: int, resolution: int, workers: int) -> dict:
-    from policy_composer.controller_table import evaluate_rows
+    from policy_composer.app.controller_table import evaluate_rows
     from policy_composer.policies.library import LibrarySources
 
     rows = evaluate_rows({"MP": ("mp_pick", "mp_insert")}, LibrarySources(), trials, first_seed=7000,
@@ -47,7 +47,7 @@ def table(trials: int, resolution: int, workers: int) -> dict:
 
 
 def compose(models: str, dmp: str, cnn: str, episodes: int, resolution: int, workers: int, out: Path) -> list:
-    from policy_composer.composition import compose_library
+    from policy_composer.app.composition import compose_library
     from policy_composer.policies.library import LibrarySources
     from policy_composer.selector.configuration import ComposeConfig
 

@@ -21,7 +21,7 @@ class Controller(ABC):
     obs_keys: tuple[str, ...] = ()  # the parts of the observation this controller reads: its state space
     action_kind: str = ""  # e.g. "discrete", "joint_targets", "joint_waypoints"
     rate_hz: float | None = None  # how often it acts; None: once per env step
-    initiation: str = "anywhere"  # I_w in words, for error messages and the README table
+    initiation: str = "anywhere"  # I_w in words, for error messages and the controller table in docs/controllers.md
 
     @abstractmethod
     def can_start(self, obs: Any) -> bool:

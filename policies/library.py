@@ -8,26 +8,17 @@ controllers here, so a name means the same controller everywhere.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from policy_composer.policies.base import Controller
 from policy_composer.policies.registry import LibraryError, get_kind, kind_of, kinds
 
-# Bumped when the controllers behave differently, so that stored runs of the old ones are not reused.
-# 2: an insertion that would let the gear go on top of the peg backs off with it to the pre-insertion pose.
-# 3: plans are bounded by collision checks, not seconds, and do not depend on earlier plans.
-# 4: the re-grasp (mp_regrasp); an insertion that leads the gear away from the peg, or ends holding it off the peg,
-#    backs off.
-# 5: the MP and DMP insertions feel for the hole (Insert.search); an insertion lets go only once the gear is down the
-#    peg, and is off course 20 mm off the peg's axis below its top (30 mm above it).
-# 6: an insertion is off course once the gear tips past INSERT_TILT_DEG in the fingers; a back-off first brings the
-#    commands back to the measured joints at a safe speed (the CNN's back-offs were stopped for safety).
-# 7: a planned activation (MP, DMP) ramps from the measured joints to its first target (an `mp_insert` after a CNN
-#    back-off jumped there and was stopped for safety).
-# 8: the moves start only with the gear level in the hand and within the pre-insertion tolerance of the fingers'
-#    centre (after an insertion had tipped or pushed it, they failed one after another until the re-grasp).
-# 9: a learned controller stops before a command that would put the arm into the right one (the CNN move did, and no
-#    plan started from there); the planners' hand-down goal IK starts again from the rest configuration where it
-#    finds no solution from the measured joints.
+# Where a kind's trained model is unless LibrarySources.models says otherwise: MODELS/KIND (the training commands'
+# default output).
+MODELS = Path("results/models")
+
+# Bumped when the controllers behave differently, so that stored runs of the old ones are not reused (CHANGELOG.md
+# says what each revision changed).
 LIBRARY_REVISION = 9
 
 __all__ = ["LIBRARY_REVISION", "LeRobotSource", "LibraryError", "LibrarySources", "all_names", "build_library",
@@ -51,12 +42,13 @@ class LeRobotSource:
 class LibrarySources:
     """Where the learned controllers' models are, and how the planned ones perceive the gear."""
 
-    models: dict[str, str] = field(default_factory=dict)  # kind name -> model path (default: the kind's own)
+    models: dict[str, str] = field(default_factory=dict)  # kind name -> model path (default: MODELS/KIND)
     lerobot: tuple[LeRobotSource, ...] = field(default_factory=tuple)
     max_grasp_offset: float = 0.012  # the pick-up's perception error along the fingers (m)
 
     def model_path(self, kind: str) -> str | None:
-        return self.models.get(kind, get_kind(kind).model_path)
+        """Where the kind's trained model is (None: it has none)."""
+        return self.models.get(kind, str(MODELS / kind)) if get_kind(kind).trained else None
 
 
 def all_names(sources: LibrarySources | None = None) -> tuple[str, ...]:
@@ -76,7 +68,7 @@ class _Models:
         self.sources, self.loaded = sources, {}
 
     def __getitem__(self, kind) -> object:
-        if kind.load is None:
+        if not kind.trained:
             return None
         if kind.name not in self.loaded:
             self.loaded[kind.name] = kind.function("load")(self.sources.model_path(kind.name))
@@ -94,10 +86,10 @@ def subtask_of(name: str, sources: LibrarySources) -> str:
 
 def cameras_needed(names, sources: LibrarySources) -> tuple[str, ...]:
     """The cameras the named controllers read (an env must render them)."""
-    from policy_composer.policies.lerobot_policy import lerobot_cameras
+    from policy_composer.policies.lerobot_policy.controller import lerobot_cameras
 
     models, cameras = _Models(sources), []
-    for kind in dict.fromkeys(k for k in map(kind_of, names) if k is not None and k.cameras is not None):
+    for kind in dict.fromkeys(k for k in map(kind_of, names) if k is not None and k.trained and k.function("cameras")):
         cameras += kind.function("cameras")(models[kind])
     for source in sources.lerobot:
         if source.controller_name in names:
@@ -108,15 +100,13 @@ def cameras_needed(names, sources: LibrarySources) -> tuple[str, ...]:
 def model_ids(names, sources: LibrarySources) -> dict[str, str]:
     """The trained model each named controller runs, by `weights_id` (controllers without one are left out):
     recorded with its rollouts, so that a dynamics model is never paired with another model's controller."""
-    from pathlib import Path
-
     from policy_composer.learning.checkpoint import weights_id
 
     lerobot = {s.controller_name: s.path for s in sources.lerobot}
     ids = {}
     for name in names:
         kind = kind_of(name)
-        path = lerobot.get(name) or (sources.model_path(kind.name) if kind is not None and kind.load else None)
+        path = lerobot.get(name) or (sources.model_path(kind.name) if kind is not None else None)
         if path is not None and kind is not None:  # a folder with one model per subtask: the subtask's own
             own = Path(path) / name.removeprefix(f"{kind.name}_")
             path = own if own.is_dir() else path
@@ -135,7 +125,7 @@ def build_library(env, names=None, sources: LibrarySources | None = None) -> dic
     models, library = _Models(sources), {}
     for name in names:
         if name in lerobot:
-            from policy_composer.policies.lerobot_policy import LeRobotPolicyController
+            from policy_composer.policies.lerobot_policy.controller import LeRobotPolicyController
 
             src = lerobot[name]
             library[name] = LeRobotPolicyController(env, src.path, SUBTASKS[src.subtask], name=name)
@@ -144,5 +134,5 @@ def build_library(env, names=None, sources: LibrarySources | None = None) -> dic
         if kind is None:
             raise LibraryError(f"no controller named {name!r}; the library has {', '.join(all_names(sources))}")
         subtask = SUBTASKS[name.removeprefix(f"{kind.name}_")]
-        library[name] = kind.function("build")(env, subtask, models[kind], sources.max_grasp_offset)
+        library[name] = kind.function("build")(env, subtask, models[kind], kind.config(), sources.max_grasp_offset)
     return library

@@ -18,6 +18,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 
+from policy_composer.policies.mp.configuration_mp import MPConfig
 from policy_composer.tasks.gear_assembly import LEFT_BASE, RIGHT_BASE
 from policy_composer.tasks.gear_kinematics import JOINT_HIGH, JOINT_LOW, PANDA_DIR
 from policy_composer.tasks.gear_kinematics import PANDA_SRDF as SRDF
@@ -28,7 +29,6 @@ VELOCITY_LIMIT = np.array([2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61])
 TABLE_HALF = (1.2, 1.2, 0.05)  # a slab whose top is the table surface (z = 0)
 
 
-PLAN_CHECKS = 20_000  # collision checks one plan may spend (about 4 s here): a work budget, not a time budget
 OMPL_SEED = 1  # OMPL rejects 0
 
 
@@ -142,7 +142,7 @@ def _restart_ompl_random_streams() -> None:
 
 
 def plan_rrt_connect(collision: SceneCollisionModel, q_start: np.ndarray, q_goal: np.ndarray,
-                     max_checks: int = PLAN_CHECKS) -> np.ndarray:
+                     max_checks: int = MPConfig.plan_checks) -> np.ndarray:
     """A simplified collision-free joint path (K, 7) from q_start to q_goal, by OMPL's RRT-Connect, or a
     PlanningError if none is found within `max_checks` collision checks."""
     from ompl import base as ob

@@ -1,14 +1,14 @@
-"""The registry of controller kinds: each kind registers once, and the library, Table I, the recipes, the main job
-and the command line read it.
+"""The registry of controller kinds: each kind registers once, on its configuration class, and the library, Table I,
+the recipes, the main job and the command line read it.
 
-A kind (MP, DMP, CNN, ...) says which subtasks it serves, how one of its controllers is built, what trained model
-it loads (if any) and which cameras that model reads. Its controllers are named `KIND_SUBTASK` (mp_pick,
-cnn_insert). The functions are named as "module:attribute" and imported only when used, so reading the registry
-(the command line's flags, the main job's keys) does not import the simulator, OMPL or torch.
+A kind (MP, DMP, CNN, ...) lives in its own folder, the way LeRobot keeps a policy: `configuration_KIND.py` (light:
+no simulator, OMPL or torch) holds the config class that `register_kind` decorates, and `controller.py` beside it
+holds `build(env, subtask, model, config, max_grasp_offset)`, plus `load(path)` for a kind with a trained model and
+`cameras(model)` for one whose model reads cameras. Its controllers are named `KIND_SUBTASK` (mp_pick, cnn_insert).
+Reading the registry imports only the configuration modules, so the command line's flags do not load the simulator.
 
-To add a kind: write its module (a `Controller` subclass and a `build` function) and add one `register_kind` line
-below. A kind in another package calls `register_kind` in a module named by a `policy_composer.controller_kinds`
-entry point.
+To add a kind: write its folder and add its name to `BUILTIN_KINDS`. A kind in another package names its
+configuration module in a `policy_composer.controller_kinds` entry point.
 """
 
 from __future__ import annotations
@@ -19,12 +19,8 @@ from importlib import import_module
 from importlib.metadata import entry_points
 from typing import Any
 
-# The modules of the built-in kinds; importing one registers its kind.
-BUILTIN_MODULES = (
-    "policy_composer.policies.motion_planning",
-    "policy_composer.policies.dmp",
-    "policy_composer.policies.cnn.controller",
-)
+# The built-in kinds, in Table I's order; `policies/KIND/configuration_KIND.py` registers each.
+BUILTIN_KINDS = ("mp", "dmp", "cnn")
 ENTRY_POINT_GROUP = "policy_composer.controller_kinds"
 
 
@@ -37,48 +33,48 @@ class ControllerKind:
     name: str  # lower case: the prefix of its controllers' names
     label: str  # its row in Table I
     subtasks: tuple[str, ...]  # the subtasks it has a controller for
-    # build(env, subtask, model, max_grasp_offset) -> Controller; `model` is what `load` gave (None without one)
-    build: str
-    load: str | None = None  # load(path) -> its trained model; None: nothing is trained
-    # where `train_command` writes the model by default: a file or folder, or a folder with one per subtask (the
-    # subtask's subfolder then identifies the model its controller runs)
-    model_path: str | None = None
-    train_command: str = ""  # the command that trains the model, for error messages and --help
-    cameras: str | None = None  # cameras(model) -> the cameras the loaded model reads; None: none
+    config: type  # its configuration class; `build` gets an instance with the defaults
+    trained: bool = False  # its controllers run a trained model, which `load(path)` reads
+    module: str = ""  # where build, load and cameras are; default: `controller` beside the configuration
 
     @property
     def controller_names(self) -> tuple[str, ...]:
         return tuple(f"{self.name}_{s}" for s in self.subtasks)
 
-    def function(self, role: str) -> Callable[..., Any]:
-        """The function named by `build`, `load` or `cameras`."""
-        module, _, attribute = getattr(self, role).partition(":")
-        target = import_module(module)
-        for part in attribute.split("."):
-            target = getattr(target, part)
-        return target
+    def function(self, role: str) -> Callable[..., Any] | None:
+        """The controller module's `build`, `load` or `cameras` (None where the kind has no such function)."""
+        module = self.module or self.config.__module__.rpartition(".")[0] + ".controller"
+        return getattr(import_module(module), role, None)
 
 
 _KINDS: dict[str, ControllerKind] = {}
-_plugins_loaded = False
+_loaded = False
 
 
-def register_kind(kind: ControllerKind) -> ControllerKind:
-    """Add a kind to the registry (once per name)."""
-    if kind.name in _KINDS and _KINDS[kind.name] != kind:
-        raise LibraryError(f"controller kind {kind.name!r} is registered twice")
-    _KINDS[kind.name] = kind
-    return kind
+def register_kind(name: str, label: str, subtasks: tuple[str, ...], trained: bool = False, module: str = ""):
+    """Decorate a kind's configuration class to add the kind to the registry (once per name)."""
+
+    def register(config: type) -> type:
+        kind = ControllerKind(name, label, tuple(subtasks), config, trained, module)
+        if name in _KINDS and _KINDS[name] != kind:
+            raise LibraryError(f"controller kind {name!r} is registered twice")
+        _KINDS[name] = kind
+        return config
+
+    return register
 
 
 def kinds() -> dict[str, ControllerKind]:
-    """Every registered kind, by name, built-in kinds first."""
-    global _plugins_loaded
-    if not _plugins_loaded:
-        _plugins_loaded = True
+    """Every registered kind, by name: the built-in kinds first, in Table I's order."""
+    global _loaded
+    if not _loaded:
+        _loaded = True
+        for name in BUILTIN_KINDS:
+            import_module(f"policy_composer.policies.{name}.configuration_{name}")
         for ep in entry_points(group=ENTRY_POINT_GROUP):
             ep.load()
-    return dict(_KINDS)
+    order = [n for n in BUILTIN_KINDS if n in _KINDS] + [n for n in _KINDS if n not in BUILTIN_KINDS]
+    return {n: _KINDS[n] for n in order}
 
 
 def get_kind(name: str) -> ControllerKind:
@@ -93,13 +89,3 @@ def get_kind(name: str) -> ControllerKind:
 def kind_of(controller: str) -> ControllerKind | None:
     """The kind a controller name belongs to (None: not a registered kind's controller)."""
     return next((k for k in kinds().values() if controller in k.controller_names), None)
-
-
-_P = "policy_composer.policies"
-register_kind(ControllerKind("mp", "MP", ("pick", "move", "insert", "regrasp"), build=f"{_P}.motion_planning:build"))
-register_kind(ControllerKind("dmp", "DMP", ("pick", "move", "insert"), build=f"{_P}.dmp:build",
-                             load=f"{_P}.dmp:DMPLibrary.load", model_path="results/models/dmp",
-                             train_command="policy-composer train dmp"))
-register_kind(ControllerKind("cnn", "CNN", ("pick", "move", "insert"), build=f"{_P}.cnn.controller:build",
-                             load=f"{_P}.cnn.train:load_cnn_library", cameras=f"{_P}.cnn.controller:policy_cameras",
-                             model_path="results/models/cnn", train_command="policy-composer train policy"))

@@ -9,14 +9,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from policy_composer.learning.config import BACKBONES, check_options, option
+from policy_composer.learning.config import BACKBONES, TrainingConfig, check_options, option
 from policy_composer.tasks.spec import CAMERA_NAMES
 
 GOAL_SCORES = ("image", "latent")  # what the selector's goal score reads: each prediction decoded, or the latent
 
 
 @dataclass
-class VAEConfig:
+class VAEConfig(TrainingConfig):
     """The latent state s_t: a variational autoencoder of one camera's images. The paper uses the head camera;
     here the arm hides the insertion from it (its goal score is the same for a gear held above the peg and one
     seated on it), so the selector sees through the left forearm camera, which watches the gear in the hand."""
@@ -25,17 +25,11 @@ class VAEConfig:
     image_size: int = option(64, "images are resized to this square", minimum=16)
     latent_dim: int = option(32, "size of the latent state", minimum=1)
     beta: float = 1.0  # weight of the KL term against the per-image reconstruction error (summed over pixels)
-    lr: float = 1e-3
-    batch_size: int = 64
     epochs: int = option(30, "VAE training epochs", minimum=1)
-    seed: int = 0
-
-    def __post_init__(self):
-        check_options(self)
 
 
 @dataclass
-class DynamicsConfig:
+class DynamicsConfig(TrainingConfig):
     """D_w: a mixture density network over the next latent under controller w."""
 
     controller: str = ""
@@ -46,17 +40,11 @@ class DynamicsConfig:
     hidden_dim: int = 256
     num_mixtures: int = option(5, "mixture components of each dynamics model", minimum=1)
     decoder_weight: float = 1.0  # the shared decoder: the predicted latent must decode to the real next image
-    lr: float = 1e-3
-    batch_size: int = 64
     epochs: int = option(60, "dynamics-model training epochs", minimum=1)
-    seed: int = 0
-
-    def __post_init__(self):
-        check_options(self)
 
 
 @dataclass
-class GoalScoreConfig:
+class GoalScoreConfig(TrainingConfig):
     """G: a CNN with a mixture density head over task progress, trained on full-task demonstrations."""
 
     camera: str = option("head", "the camera the goal score sees", CAMERA_NAMES)
@@ -65,32 +53,22 @@ class GoalScoreConfig:
     hidden_dim: int = 256
     num_mixtures: int = option(24, "Gaussian mixture components (paper: 24)", minimum=1)
     shift: int = 4  # random-shift augmentation (pixels)
-    lr: float = 1e-3
     weight_decay: float = 1e-6
-    batch_size: int = 120
+    batch_size: int = option(120, "minibatch size", minimum=1)
     epochs: int = option(60, "goal-score training epochs", minimum=1)
-    seed: int = 0
-
-    def __post_init__(self):
-        check_options(self)
 
 
 @dataclass
-class LatentGoalScoreConfig:
+class LatentGoalScoreConfig(TrainingConfig):
     """G on the VAE's latent state (the paper's experiments: the goal score "operates on the latent space"): an MLP
     with a mixture density head, so the selector scores its predicted latents without decoding them to images."""
 
     latent_dim: int = 32  # the VAE's
     hidden_dim: int = 256
     num_mixtures: int = option(24, "Gaussian mixture components (paper: 24)", minimum=1)
-    lr: float = 1e-3
     weight_decay: float = 1e-6
-    batch_size: int = 120
+    batch_size: int = option(120, "minibatch size", minimum=1)
     epochs: int = option(300, "latent goal-score training epochs (an epoch is a few batches)", minimum=1)
-    seed: int = 0
-
-    def __post_init__(self):
-        check_options(self)
 
 
 @dataclass

@@ -18,29 +18,23 @@ from torch import nn
 
 from policy_composer.data.frames import episode_bounds
 from policy_composer.learning.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from policy_composer.learning.layers import MixtureDensityHead
-from policy_composer.learning.training import fit_epochs
+from policy_composer.learning.layers import MixtureDensityHead, MixtureDensityMLP
+from policy_composer.learning.training import adam, fit_epochs
 from policy_composer.selector.configuration import DynamicsConfig
 from policy_composer.selector.vae import VAE
 
 TRAIN_HINT = "policy-composer train world-model"
 
 
-class LatentDynamics(nn.Module):
+class LatentDynamics(MixtureDensityMLP):
     """z_t -> a mixture over z_{t+k} - z_t. Normalisation statistics live in buffers."""
 
     def __init__(self, config: DynamicsConfig):
-        super().__init__()
+        L = config.latent_dim
+        super().__init__(L, config.hidden_dim, L, config.num_mixtures)
         self.config = config
-        L, H = config.latent_dim, config.hidden_dim
-        self.trunk = nn.Sequential(nn.Linear(L, H), nn.ReLU(), nn.Linear(H, H), nn.ReLU())
-        self.head = MixtureDensityHead(H, L, config.num_mixtures)
-        for name in ("z", "delta"):
-            self.register_buffer(f"{name}_mean", torch.zeros(L))
-            self.register_buffer(f"{name}_std", torch.ones(L))
-
-    def forward(self, z: torch.Tensor):
-        return self.head(self.trunk((z - self.z_mean) / self.z_std))
+        self.register_buffer("delta_mean", torch.zeros(L))
+        self.register_buffer("delta_std", torch.ones(L))
 
     def expected(self, z: torch.Tensor, params=None) -> torch.Tensor:
         """The mixture's mean next latent (differentiable: the decoder loss trains through it)."""
@@ -147,7 +141,7 @@ def train_dynamics(latents: torch.Tensor, images: torch.Tensor, episode_index: t
     model.delta_std.copy_(delta.std(0).clamp_min(1e-3))
     for p in vae.parameters():  # shared, not trained here
         p.requires_grad_(False)
-    opt = torch.optim.Adam(model.parameters(), lr=config.lr)
+    opt = adam(model, config)
     gen = torch.Generator().manual_seed(config.seed)
     losses = fit_epochs(model, opt, len(src), config.batch_size, config.epochs,
                         lambda idx: model.loss(latents[src[idx]], latents[dst[idx]], vae,

@@ -19,8 +19,8 @@ from torch import nn
 
 from policy_composer.data.frames import episode_bounds, random_shift, to_model_image
 from policy_composer.learning.checkpoint import load_checkpoint, save_checkpoint
-from policy_composer.learning.layers import MixtureDensityHead, image_encoder
-from policy_composer.learning.training import fit_epochs
+from policy_composer.learning.layers import MixtureDensityHead, MixtureDensityMLP, image_encoder
+from policy_composer.learning.training import adam, fit_epochs
 from policy_composer.selector.configuration import GoalScoreConfig, LatentGoalScoreConfig
 
 TRAIN_HINT = "policy-composer train goal-score"
@@ -62,20 +62,12 @@ class GoalScoreModel(nn.Module):
                           for i in range(0, len(images_uint8), batch)])
 
 
-class LatentGoalScoreModel(nn.Module):
+class LatentGoalScoreModel(MixtureDensityMLP):
     """G of a latent state (B, L) of the VAE it was trained with. Normalisation statistics live in buffers."""
 
     def __init__(self, config: LatentGoalScoreConfig):
-        super().__init__()
+        super().__init__(config.latent_dim, config.hidden_dim, 1, config.num_mixtures)
         self.config = config
-        L, H = config.latent_dim, config.hidden_dim
-        self.trunk = nn.Sequential(nn.Linear(L, H), nn.ReLU(), nn.Linear(H, H), nn.ReLU())
-        self.head = MixtureDensityHead(H, 1, config.num_mixtures)
-        self.register_buffer("z_mean", torch.zeros(L))
-        self.register_buffer("z_std", torch.ones(L))
-
-    def forward(self, z: torch.Tensor):
-        return self.head(self.trunk((z - self.z_mean) / self.z_std))
 
     def loss(self, z: torch.Tensor, progress: torch.Tensor) -> torch.Tensor:
         return progress_nll(self(z), progress)
@@ -96,7 +88,7 @@ def train_goal_score(images: torch.Tensor, progress: torch.Tensor, config: GoalS
         raise ValueError("progress labels must be in [0, 1]: train the goal score on successful demonstrations only")
     torch.manual_seed(config.seed)
     model = GoalScoreModel(config)
-    opt = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    opt = adam(model, config)
     gen = torch.Generator().manual_seed(config.seed)
     losses = fit_epochs(model, opt, len(images), config.batch_size, config.epochs,
                         lambda idx: model.loss(random_shift(images[idx].float() / 255.0, config.shift, gen),
@@ -121,7 +113,7 @@ def train_latent_goal_score(mean: torch.Tensor, logvar: torch.Tensor, progress: 
     model = LatentGoalScoreModel(config)
     model.z_mean.copy_(mean.mean(0))
     model.z_std.copy_(mean.std(0).clamp_min(1e-3))
-    opt = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    opt = adam(model, config)
     gen = torch.Generator().manual_seed(config.seed)
     std = (0.5 * logvar).exp()
     losses = fit_epochs(model, opt, len(mean), config.batch_size, config.epochs,

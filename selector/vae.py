@@ -15,7 +15,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from policy_composer.learning.checkpoint import load_checkpoint, save_checkpoint
-from policy_composer.learning.training import fit_epochs
+from policy_composer.learning.training import adam, fit_epochs
 from policy_composer.selector.configuration import VAEConfig
 
 TRAIN_HINT = "policy-composer train world-model"
@@ -88,7 +88,7 @@ def train_vae(images: torch.Tensor, config: VAEConfig, out: str | Path | None = 
     t0 = time.perf_counter()
     torch.manual_seed(config.seed)
     model = VAE(config)
-    opt = torch.optim.Adam(model.parameters(), lr=config.lr)
+    opt = adam(model, config)
     gen = torch.Generator().manual_seed(config.seed)
     losses = fit_epochs(model, opt, len(images), config.batch_size, config.epochs,
                         lambda idx: model.loss(images[idx].float() / 255.0)[0], gen,

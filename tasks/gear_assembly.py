@@ -6,10 +6,12 @@ module (base plate + vertical peg) rigidly in its hand, at a pose that varies pe
 held the peg module in its other hand. Cameras: ``head`` (fixed, over the whole workspace) and
 ``left_forearm`` / ``right_forearm`` (on each hand, seeing its gripper and what it holds).
 
-Randomisation per seed: the gear's x, y and yaw on the table, the right arm's configuration (so the
+**Task Description:** the left arm picks the gear up, carries it to the peg and slides it down the peg.
+
+**Randomizations:** per seed, the gear's x, y and yaw on the table, the right arm's configuration (so the
 peg's position and yaw), and small noise on the left arm's start configuration.
 
-Success: the gear seated on the peg (axes aligned within ``ALIGN_TOL_DEG``, the gear down at the base
+**Success Conditions:** the gear seated on the peg (axes aligned within ``ALIGN_TOL_DEG``, the gear down at the base
 plate). ``evaluate`` also gives the subtask flags and an integer ``stage`` (0 pick, 1 move, 2 insert,
 3 done) used as labels by the datasets and by evaluation.
 """
@@ -61,10 +63,7 @@ HEAD_EYE, HEAD_TARGET = [0.35, -0.10, 0.70], [0.0, -0.10, 0.05]
 # fingers, where it first was, the hand hid the peg and its goal score could not learn).
 FOREARM_VIEWS = {"left": ([-0.08, 0.06, 0.08], [0.0, 0.0, 0.15]), "right": ([0.16, -0.15, 0.03], [0.10, 0.0, 0.07])}
 # Bump when a change alters what the task simulates or renders: the main job's recording stages key on it, so
-# recordings made before the change are not reused after it.
-# 2: the right forearm camera sees the peg; 3: the scene is rebuilt at every reset; 4: a gear tilted on the peg is
-# not inserted; 5: the pre_insertion start (Table I's insert column and the insertion controllers' rollouts start
-# there); 6: the expert backs off after the release at the controllers' speed (policy_composer.tasks.gear_expert)
+# recordings made before the change are not reused after it (CHANGELOG.md says what each revision changed).
 TASK_REVISION = 6
 GEAR_XY_CENTER = (0.0, -0.30)
 GEAR_XY_RANGE = (0.10, 0.06)  # half-ranges of the gear's uniform position on the table

@@ -23,8 +23,8 @@ def record_dataset(tmp_path_factory, recipe: str, episodes: int, resolution: int
     """Record `episodes` of `recipe` (with `changes` to its fields) at `resolution` px into a new temporary folder."""
     from dataclasses import replace
 
+    from policy_composer.app.record import record_recipe
     from policy_composer.data.recipes import load_recipe
-    from policy_composer.record import record_recipe
     from policy_composer.tasks.spec import EnvSettings
 
     root = tmp_path_factory.mktemp("ds") / (name or recipe)
@@ -81,7 +81,8 @@ def act_checkpoint(insertion_demos, tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def diffusion_checkpoint(insertion_demos, tmp_path_factory):
-    """Diffusion Policy at the README's settings, shrunk: two observation steps in, chunks of 8 actions out."""
+    """Diffusion Policy at docs/lerobot-policies.md's settings, shrunk: two observation steps in, chunks of 8 actions
+    out."""
     return lerobot_train(insertion_demos, tmp_path_factory.mktemp("diffusion") / "run", "diffusion",
                          "--policy.use_group_norm=true", "--policy.use_separate_rgb_encoder_per_camera=false",
                          "--policy.crop_shape=[56,56]", "--policy.n_obs_steps=2", "--policy.horizon=16",

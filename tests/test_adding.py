@@ -9,7 +9,7 @@ import shutil
 import pytest
 import torch
 
-from policy_composer.adding import add_lerobot_controller
+from policy_composer.app.adding import add_lerobot_controller
 from policy_composer.policies.library import LeRobotSource, LibraryError
 from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
 from policy_composer.selector.train import train_goal_scores, train_world_model

@@ -7,7 +7,14 @@ import numpy as np
 import pytest
 
 from policy_composer.policies.arm import Outcome, run_activation
-from policy_composer.policies.dmp import DMPConfig, DMPController, DMPLibrary, fit_dmp_library, fit_primitive, rollout
+from policy_composer.policies.dmp.controller import (
+    DMPConfig,
+    DMPController,
+    DMPLibrary,
+    fit_dmp_library,
+    fit_primitive,
+    rollout,
+)
 from policy_composer.policies.planning import time_parameterize
 from policy_composer.policies.subtasks import SUBTASKS
 

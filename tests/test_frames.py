@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 from conftest import tree_digest
 
+from policy_composer.app.pipeline import MARKER, Stage, run_stages
 from policy_composer.data import recorder
 from policy_composer.data.features import DatasetError, image_key, open_dataset, read_info, video_frames
 from policy_composer.data.frames import load_frames
 from policy_composer.data.recorder import FrameBuffer, LeRobotWriter
-from policy_composer.pipeline import MARKER, Stage, run_stages
 from policy_composer.tasks.gear_expert import GearAssemblyExpert
 from policy_composer.tasks.spec import CAMERA_NAMES
 
@@ -150,7 +150,7 @@ def test_every_reader_refuses_a_video_one_frame_short(damaged):
 
 def test_a_reused_stage_with_a_damaged_dataset_is_made_again(damaged, insertion_demos, tmp_path):
     """The main job's check of a finished recording stage: named, made again, and the stage reading it too."""
-    from policy_composer.demo import _verify_dataset
+    from policy_composer.app.demo import _verify_dataset
 
     root, _ = damaged
     calls, lines = [], []

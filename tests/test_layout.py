@@ -1,6 +1,9 @@
-"""The layout: one import root, layers that import downward, and no shadowing of Hugging Face's `datasets`."""
+"""The layout: six layers that import downward, one import root that static tools resolve, and no shadowing of
+Hugging Face's `datasets`."""
 
 import ast
+import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -8,22 +11,23 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-# The design card's folders install under the one import root (pyproject's package-dir).
-FOLDERS = {"policy_composer": "policy_composer", "policy_composer.tasks": "tasks",
-           "policy_composer.policies": "policies", "policy_composer.selector": "selector"}
-# Lowest first: a module may import its own layer and the layers below it, never one above.
-LAYERS = ("policy_composer.tasks", "policy_composer.data", "policy_composer.learning", "policy_composer.policies",
-          "policy_composer.selector", "policy_composer")
+# The design card's folders, each a symlink under the one import root.
+CARD_FOLDERS = ("tasks", "policies", "selector")
+# The six layers, lowest first: a module may import its own layer and the layers below it, never one above.
+LAYERS = {"task": "policy_composer.tasks", "dataset I/O": "policy_composer.data",
+          "learning kernel": "policy_composer.learning", "controllers": "policy_composer.policies",
+          "selector": "policy_composer.selector", "application": "policy_composer.app"}
+PREFIXES = tuple(LAYERS.values())
 
 
-def layer(module: str) -> int:
-    return next(i for i, prefix in enumerate(LAYERS) if module == prefix or module.startswith(prefix + "."))
+def layer(module: str) -> int | None:
+    return next((i for i, p in enumerate(PREFIXES) if module == p or module.startswith(p + ".")), None)
 
 
 def module_name(path: Path, root: Path = ROOT) -> str:
     rel = path.relative_to(root).with_suffix("")
-    package = next(pkg for pkg, folder in FOLDERS.items() if rel.parts[0] == folder)
-    return ".".join([package, *rel.parts[1:]]).removesuffix(".__init__")
+    parts = rel.parts if rel.parts[0] == "policy_composer" else ("policy_composer", *rel.parts)
+    return ".".join(parts).removesuffix(".__init__")
 
 
 def imports(path: Path):
@@ -35,22 +39,38 @@ def imports(path: Path):
             names = [f"{node.module}.{a.name}" for a in node.names]
         else:
             continue
-        yield from ((node.lineno, n) for n in names if n.split(".")[0] in ("policy_composer", *FOLDERS.values()))
+        yield from ((node.lineno, n) for n in names if n.split(".")[0] in ("policy_composer", *CARD_FOLDERS))
 
 
 def source_files():
-    return sorted(p for folder in FOLDERS.values() for p in (ROOT / folder).rglob("*.py"))
+    """Every module once, under its real folder (the symlinks under policy_composer/ are skipped)."""
+    own = [p for p in (ROOT / "policy_composer").rglob("*.py") if p.relative_to(ROOT).parts[1] not in CARD_FOLDERS]
+    return sorted([*own, *(p for folder in CARD_FOLDERS for p in (ROOT / folder).rglob("*.py"))])
 
 
-def test_layers_import_downward():
-    upward, bare = [], []
+def test_the_card_folders_are_the_import_roots_subpackages():
+    for folder in CARD_FOLDERS:
+        link = ROOT / "policy_composer" / folder
+        assert link.is_symlink() and link.resolve() == ROOT / folder, link
+
+
+def test_every_module_is_in_one_of_six_layers_and_imports_downward():
+    unplaced, upward, bare = [], [], []
     for path in source_files():
         me = module_name(path)
+        if me == "policy_composer":  # the root package: its version, nothing of the project
+            assert not list(imports(path)), "policy_composer/__init__.py imports the project"
+            continue
+        if layer(me) is None:
+            unplaced.append(str(path.relative_to(ROOT)))
+            continue
         for line, target in imports(path):
-            if not target.startswith("policy_composer"):
-                bare.append(f"{path.relative_to(ROOT)}:{line} imports {target}")
-            elif layer(target) > layer(me):
-                upward.append(f"{path.relative_to(ROOT)}:{line} ({LAYERS[layer(me)]}) imports {target}")
+            where = f"{path.relative_to(ROOT)}:{line}"
+            if not target.startswith("policy_composer."):
+                bare.append(f"{where} imports {target}")
+            elif layer(target) is None or layer(target) > layer(me):
+                upward.append(f"{where} ({list(LAYERS)[layer(me)]}) imports {target}")
+    assert not unplaced, f"modules outside the six layers ({', '.join(PREFIXES)}): {unplaced}"
     assert not bare, "import through the root, policy_composer.*:\n" + "\n".join(bare)
     assert not upward, "a lower layer imports a higher one:\n" + "\n".join(upward)
 
@@ -59,10 +79,44 @@ def test_layer_check_catches_an_upward_import(tmp_path):
     """The check itself: a controller module that reaches into the application, inside a function, is flagged."""
     bad = tmp_path / "policies" / "probe.py"
     bad.parent.mkdir()
-    bad.write_text("def f():\n    from policy_composer.demo import run_demo\n")
+    bad.write_text("def f():\n    from policy_composer.app.demo import run_demo\n")
     found = [(module_name(bad, tmp_path), target) for _, target in imports(bad)]
-    assert found == [("policy_composer.policies.probe", "policy_composer.demo.run_demo")]
+    assert found == [("policy_composer.policies.probe", "policy_composer.app.demo.run_demo")]
     assert layer(found[0][1]) > layer(found[0][0])
+
+
+def _unresolved_imports(root: Path) -> list[str]:
+    """basedpyright's unresolved imports and unknown imported names (pyproject's [tool.basedpyright])."""
+    exe = shutil.which("basedpyright", path=str(Path(sys.executable).parent))
+    result = subprocess.run([exe, "--outputjson", "--pythonpath", sys.executable, "--project", str(root)], cwd=root,
+                            capture_output=True, text=True, timeout=600)
+    report = json.loads(result.stdout)
+    assert report["summary"]["filesAnalyzed"] > 0, result.stderr
+    return [f"{Path(d['file']).relative_to(root)}:{d['range']['start']['line'] + 1}: {d['message']}"
+            for d in report["generalDiagnostics"]
+            if d.get("rule") == "reportMissingImports" or "is unknown import symbol" in d["message"]]
+
+
+def test_a_static_checker_resolves_every_import():
+    """What an IDE or an import graph sees: every `policy_composer.*` import, and every name imported from it."""
+    assert _unresolved_imports(ROOT) == []
+
+
+def test_the_static_check_catches_a_broken_import(tmp_path):
+    copy = tmp_path / "repo"
+    for name in ("policy_composer", *CARD_FOLDERS, "pyproject.toml"):
+        src = ROOT / name
+        if src.is_dir():
+            shutil.copytree(src, copy / name, symlinks=True, ignore=shutil.ignore_patterns("__pycache__"))
+        else:
+            shutil.copy(src, copy / name)
+    with open(copy / "selector" / "tabular.py", "a") as f:
+        f.write("from policy_composer.selector.no_such_module import x\n")
+    with open(copy / "tasks" / "spec.py", "a") as f:
+        f.write("from policy_composer.policies.registry import no_such_name\n")
+    found = _unresolved_imports(copy)
+    assert any(m.startswith("selector/tabular.py") and "no_such_module" in m for m in found), found
+    assert any(m.startswith("tasks/spec.py") and "no_such_name" in m for m in found), found
 
 
 @pytest.mark.parametrize("name, importable", [("tasks", False), ("policies", False), ("selector", False),
@@ -82,8 +136,8 @@ def test_import_datasets_from_repo_root_is_huggingface():
     assert "site-packages" in path and not path.startswith(str(ROOT / "datasets")), path
 
 
-def test_console_command_lists_demo():
-    out = subprocess.run([sys.executable, "-m", "policy_composer.cli", "--help"], cwd=ROOT, capture_output=True,
+def test_the_command_line_runs_as_a_module():
+    out = subprocess.run([sys.executable, "-m", "policy_composer.app.cli", "--help"], cwd=ROOT, capture_output=True,
                          text=True, check=True)
     assert "demo" in out.stdout
 

@@ -14,7 +14,7 @@ import sapien
 import torch
 from transforms3d.quaternions import quat2mat
 
-from policy_composer.controller_table import start_state
+from policy_composer.app.controller_table import start_state
 from policy_composer.data.features import read_sidecar
 from policy_composer.data.frames import to_model_image
 from policy_composer.data.recipes import RecipeError
@@ -30,7 +30,7 @@ from policy_composer.policies.cnn.train import (
     previous_commands,
     train_cnn_policy,
 )
-from policy_composer.policies.lerobot_policy import LeRobotPolicyController, lerobot_label
+from policy_composer.policies.lerobot_policy.controller import LeRobotPolicyController, lerobot_label
 from policy_composer.policies.subtasks import SUBTASKS
 from policy_composer.tasks.gear_expert import ExpertConfig, GearAssemblyExpert
 from policy_composer.tasks.gear_kinematics import LeftArmIK

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from policy_composer.mdp import MDPConfig, expected_activations, make_selector, run_mdp
+from policy_composer.app.mdp import MDPConfig, expected_activations, make_selector, run_mdp
 from policy_composer.policies.base import InitiationError
 from policy_composer.policies.random_walk import RANDOM_WALK_OPTIONS, random_walk_controllers
 from policy_composer.selector.core import Selector

@@ -17,7 +17,7 @@ from policy_composer.policies.arm import (
     run_activation,
 )
 from policy_composer.policies.base import InitiationError
-from policy_composer.policies.motion_planning import MotionPlanningController
+from policy_composer.policies.mp.controller import MotionPlanningController
 from policy_composer.policies.planning import (
     VELOCITY_LIMIT,
     PlanningError,
@@ -309,7 +309,7 @@ def test_a_move_needs_the_gear_level_and_near_the_fingers_centre(state_env):
     """The moves' initiation set: a gear held lifted, level and within the pre-insertion tolerance of the fingers'
     centre. Tipped or pushed along the fingers (as a CNN insertion's back-offs left it), no move can bring it to the
     pre-insertion pose; only the re-grasp may start."""
-    from policy_composer.controller_table import start_state
+    from policy_composer.app.controller_table import start_state
     from policy_composer.policies.arm import SceneGeometry
     from policy_composer.tasks.gear_assembly import INSERT_TILT_DEG, PRE_INSERT_RADIUS
 

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import pytest
 
+from policy_composer.app.pipeline import MARKER, Stage, run_stages
 from policy_composer.data.interrupt import flag_interrupts
-from policy_composer.pipeline import MARKER, Stage, run_stages
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -202,9 +202,9 @@ def test_the_main_job_runs_every_stage_reuses_them_and_writes_a_report_a_browser
 
 def test_the_report_states_only_its_own_runs_figures(tmp_path):
     """Figures other runs measured are not written into a report as its own: they are named, dated and linked."""
-    from policy_composer.demo import PROFILES
-    from policy_composer.pipeline import StageRecord
-    from policy_composer.report import _header
+    from policy_composer.app.demo import PROFILES
+    from policy_composer.app.pipeline import StageRecord
+    from policy_composer.app.report import _header
 
     out = tmp_path / "results"
     records = {"compose": StageRecord("compose", "compose", "k", out / "pipeline" / "compose-k", 60.0, False)}

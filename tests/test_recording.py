@@ -20,6 +20,7 @@ import torch
 from conftest import tree_digest
 
 import policy_composer.tasks.gear_assembly  # noqa: F401  (registers GearAssembly-v1)
+from policy_composer.app.record import record_recipe
 from policy_composer.data import journal
 from policy_composer.data.catalog import HubUnreachable, card_fields, drop_controller, push_dataset, summarize
 from policy_composer.data.features import LEROBOT_VERSION, DatasetError, open_dataset
@@ -27,7 +28,6 @@ from policy_composer.data.recipes import RecipeError, available_recipes, load_re
 from policy_composer.data.recorder import LeRobotRecorder
 from policy_composer.learning.checkpoint import CheckpointError
 from policy_composer.policies.library import LeRobotSource, LibraryError, LibrarySources
-from policy_composer.record import record_recipe
 from policy_composer.tasks.gear_expert import ExpertConfig, GearAssemblyExpert
 from policy_composer.tasks.spec import ACTION_NAMES, CAMERA_NAMES, STATE_NAMES, EnvSettings
 

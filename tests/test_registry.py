@@ -1,28 +1,37 @@
 """The registry of controller kinds: one registration puts a new kind in the library, the recipes, Table I and the
-command line (the README's "add your own controller kind", run as written)."""
+command line (docs/adding-a-controller.md's wiggle kind, registered on its config)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import pytest
 
-from policy_composer.cli import build_parser
+from policy_composer.app.cli import build_parser
+from policy_composer.app.record import recipe_controllers
 from policy_composer.data.recipes import load_recipe
 from policy_composer.policies import registry
 from policy_composer.policies.library import LibrarySources, all_names, build_library, cameras_needed, names_of_kind
-from policy_composer.policies.registry import ControllerKind, LibraryError, get_kind, register_kind
+from policy_composer.policies.registry import LibraryError, get_kind, register_kind
 from policy_composer.policies.subtasks import LearnedController
-from policy_composer.record import recipe_controllers
 
 
 class WiggleInsert(LearnedController):
     def predict(self, obs):
         q = self.left_qpos(obs)
-        q[6] += 0.02 * (-1) ** self._steps
+        q[6] += self.amplitude * (-1) ** self._steps
         return q, -1.0
 
 
-def build(env, subtask, model, max_grasp_offset):
-    return WiggleInsert(env, subtask, name=f"wiggle_{subtask.name}", max_steps=80)
+@dataclass
+class WiggleConfig:
+    amplitude: float = 0.02
+
+
+def build(env, subtask, model, config, max_grasp_offset):
+    controller = WiggleInsert(env, subtask, name=f"wiggle_{subtask.name}", max_steps=80)
+    controller.amplitude = config.amplitude
+    return controller
 
 
 def load(path):
@@ -36,10 +45,8 @@ def cameras(model):
 @pytest.fixture
 def wiggle():
     saved = dict(registry._KINDS)
-    kind = register_kind(ControllerKind("wiggle", "Wiggle", ("insert",), build=f"{__name__}:build",
-                                        load=f"{__name__}:load", model_path="results/models/wiggle",
-                                        train_command="train it yourself", cameras=f"{__name__}:cameras"))
-    yield kind
+    register_kind("wiggle", "Wiggle", ("insert",), trained=True, module=__name__)(WiggleConfig)
+    yield registry.get_kind("wiggle")
     registry._KINDS.clear()
     registry._KINDS.update(saved)
 
@@ -62,8 +69,9 @@ def test_one_registration_reaches_every_reader(wiggle, state_env, tmp_path):
     assert cameras_needed(["mp_pick", "wiggle_insert"], sources) == ("right_forearm",)
     controller = build_library(state_env, ["wiggle_insert"], sources)["wiggle_insert"]
     assert isinstance(controller, WiggleInsert) and controller.subtask.name == "insert" and controller.max_steps == 80
+    assert controller.amplitude == WiggleConfig.amplitude  # built with its kind's configuration
     args = build_parser().parse_args(["compose", "--wiggle", "elsewhere"])
     assert args.wiggle == "elsewhere" and args.cnn == "results/models/cnn"
     assert build_parser().parse_args(["evaluate", "controllers"]).kinds == "MP,DMP,CNN,Wiggle"
     with pytest.raises(LibraryError, match="registered twice"):
-        register_kind(ControllerKind("wiggle", "Wiggle", ("pick",), build=f"{__name__}:build"))
+        register_kind("wiggle", "Wiggle", ("pick",), module=__name__)(WiggleConfig)

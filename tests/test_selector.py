@@ -12,7 +12,7 @@ import gymnasium as gym
 import pytest
 import torch
 
-from policy_composer.composition import back_offs, summary
+from policy_composer.app.composition import back_offs, summary
 from policy_composer.data.features import image_key
 from policy_composer.data.frames import load_frames
 from policy_composer.learning.checkpoint import CheckpointError
@@ -149,7 +149,7 @@ def test_a_checkpoint_is_replaced_whole_or_not_at_all(world, tmp_path):
 
 
 def test_a_composed_run_continues_only_with_its_own_settings(tmp_path):
-    from policy_composer.composition import RunError, check_out
+    from policy_composer.app.composition import RunError, check_out
 
     settings = {"models": "/models", "controller_models": {"cnn_insert": "aaaa"}, "resolution": 128}
     (tmp_path / "run.json").write_text(json.dumps(settings))
@@ -256,7 +256,7 @@ def test_knock_out_puts_the_gear_back_on_the_table(state_env):
 def test_a_run_killed_mid_episode_line_keeps_its_finished_episodes(tmp_path):
     """The last line of episodes.jsonl cut off by a kill is an episode that runs again; a damaged line before it is
     named, not skipped."""
-    from policy_composer.composition import RunError, load_episodes
+    from policy_composer.app.composition import RunError, load_episodes
 
     line = json.dumps({"seed": 0, "success": True, "steps": 10, "knocked_out": False, "activations": [],
                        "decisions": []})
@@ -288,7 +288,7 @@ def test_a_batched_decision_scores_as_one_controller_at_a_time(world, goal_score
 
 def test_composing_on_two_workers_gives_the_serial_run(world, tmp_path):
     """Seeds spread over processes: every episode, and episodes.jsonl in seed order, as one process writes them."""
-    from policy_composer.composition import compose_library
+    from policy_composer.app.composition import compose_library
 
     config = ComposeConfig(horizon=3, samples=4, max_steps=150)
     runs = {w: compose_library(world[0], LibrarySources(max_grasp_offset=0.0), config, [2, 0, 1], tmp_path / f"w{w}",

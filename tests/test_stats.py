@@ -2,7 +2,7 @@
 
 import pytest
 
-from policy_composer.stats import rate, wilson
+from policy_composer.app.stats import rate, wilson
 
 
 @pytest.mark.parametrize("k, n, low, high", [

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 import torch
 
-from policy_composer.controller_table import evaluate_rows
+from policy_composer.app.controller_table import evaluate_rows
+from policy_composer.app.workers import run_episodes
 from policy_composer.data.features import open_dataset
 from policy_composer.policies.library import LibrarySources
-from policy_composer.workers import run_episodes
 
 
 def _square(x: int) -> int:
@@ -52,8 +52,8 @@ def test_rollouts_recorded_on_two_workers_are_the_serial_dataset(controller_roll
     """The same recipe and seeds on 2 workers: one LeRobot dataset, equal to the serial one episode for episode."""
     from dataclasses import replace
 
+    from policy_composer.app.record import record_recipe
     from policy_composer.data.recipes import load_recipe
-    from policy_composer.record import record_recipe
     from policy_composer.tasks.spec import EnvSettings
 
     root = tmp_path / "rollouts"

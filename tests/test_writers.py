@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from conftest import tree_digest
 
-from policy_composer.composition import RunError, VideoWriter, begin_run, compose_library
+from policy_composer.app.composition import RunError, VideoWriter, begin_run, compose_library
 from policy_composer.data.features import read_info
 from policy_composer.data.lock import FolderBusy, lock_path, one_writer
 from policy_composer.data.recipes import load_recipe

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from policy_composer.learning.config import BACKBONES, check_options, option
+from policy_composer.learning.config import BACKBONES, TrainingConfig, option
+from policy_composer.policies.registry import register_kind
 from policy_composer.tasks.spec import CAMERA_NAMES
 
 # What the policy reads of observation.state besides its image, and its size:
 # "gripper": the gripper's width only. With the joints as input, a few dozen demonstrations can be fitted from
 #            the joints alone (each episode's joint path is unique), and the image gets ignored; measured on
-#            the insertion table, see the README.
+#            the insertion table, see docs/controllers.md.
 # "arm": the left arm's 7 joints and the gripper width (the paper's wording).
 PROPRIOCEPTION = {"gripper": slice(7, 8), "arm": slice(0, 8)}
 # What the mixture density head predicts, and its size (the gripper command is the last entry of both):
@@ -28,8 +29,9 @@ DEMONSTRATIONS = {"pick": ("gear-transport-demos", (0,)), "move": ("gear-transpo
                   "insert": ("gear-insertion-demos", None)}
 
 
+@register_kind("cnn", label="CNN", subtasks=tuple(DEMONSTRATIONS), trained=True)
 @dataclass
-class CNNPolicyConfig:
+class CNNPolicyConfig(TrainingConfig):
     subtask: str = option("insert", "the subtask the policy is trained for", tuple(DEMONSTRATIONS))
     camera: str = option("left_forearm", "the camera the policy sees", CAMERA_NAMES)
     image_size: int = option(64, "images are resized to this square before the encoder", minimum=16)
@@ -44,16 +46,11 @@ class CNNPolicyConfig:
     # likelihood is won by shrinking variances, and the means (the actions) are left barely fitted: on two
     # demonstrations, a floor of 0.2 cut the fitted descent error from 2.4 mm to 0.5 mm a step.
     min_std: float = 0.2
-    lr: float = 1e-3
     weight_decay: float = 1e-6  # paper
     batch_size: int = option(120, "minibatch size (paper: 120)", minimum=1)
     epochs: int = option(200, "training epochs (paper: 200)", minimum=1)
     # Behaviour cloning's usual guard against memorising a few demonstrations.
     shift: int = option(4, "random-shift augmentation in pixels at image_size (0: none)", minimum=0)
-    seed: int = option(0, "seed of the initialisation and the minibatches")
-
-    def __post_init__(self):
-        check_options(self)
 
     @property
     def state_dim(self) -> int:

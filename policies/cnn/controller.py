@@ -9,8 +9,9 @@ from transforms3d.quaternions import quat2mat
 
 from policy_composer.data.frames import to_model_image
 from policy_composer.policies.arm import np0
-from policy_composer.policies.cnn.configuration_cnn import PROPRIOCEPTION
+from policy_composer.policies.cnn.configuration_cnn import PROPRIOCEPTION, CNNPolicyConfig
 from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
+from policy_composer.policies.cnn.train import load_cnn_library as load  # noqa: F401  (the registry's loader)
 from policy_composer.policies.cnn.train import policy_state
 from policy_composer.policies.registry import LibraryError
 from policy_composer.policies.subtasks import SUBTASKS, LearnedController, Subtask, check_camera
@@ -69,13 +70,15 @@ def hand_step(ik: LeftArmIK, command: np.ndarray, displacement: np.ndarray,
     return command, q9[:7]
 
 
-def build(env, subtask, policies: dict[str, CNNPolicy], max_grasp_offset: float) -> CNNController:
-    """The registry's builder: the policy trained for the subtask as its controller."""
+def build(env, subtask, policies: dict[str, CNNPolicy], config: CNNPolicyConfig,
+          max_grasp_offset: float) -> CNNController:
+    """The registry's builder: the policy trained for the subtask as its controller (at the configuration it was
+    trained with, saved beside its weights)."""
     if subtask.name not in policies:
         raise LibraryError(f"the CNN model has no policy for {subtask.name} (it has {', '.join(policies)}); train one "
                            f"with `policy-composer train policy --subtask {subtask.name}`")
     return CNNController(env, policies[subtask.name], subtask)
 
 
-def policy_cameras(policies: dict[str, CNNPolicy]) -> tuple[str, ...]:
+def cameras(policies: dict[str, CNNPolicy]) -> tuple[str, ...]:
     return tuple(dict.fromkeys(p.config.camera for p in policies.values()))

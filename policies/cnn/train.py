@@ -18,7 +18,7 @@ from policy_composer.data.features import DatasetError, image_key
 from policy_composer.data.frames import load_frames, random_shift
 from policy_composer.data.recipes import check_recipe
 from policy_composer.learning.checkpoint import CheckpointError, load_checkpoint, load_config, save_checkpoint
-from policy_composer.learning.training import fit_epochs
+from policy_composer.learning.training import adam, fit_epochs
 from policy_composer.policies.cnn.configuration_cnn import DEMONSTRATIONS, PROPRIOCEPTION, CNNPolicyConfig
 from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
 from policy_composer.tasks.gear_kinematics import PandaForwardKinematics
@@ -84,7 +84,7 @@ def train_cnn_policy(root: str | Path, config: CNNPolicyConfig, out: str | Path 
     for name, x in (("state", data["state"].float()), ("action", data["action"][:, :-1].float())):
         getattr(model, f"{name}_mean").copy_(x.mean(0))
         getattr(model, f"{name}_std").copy_(x.std(0).clamp_min(1e-5))
-    opt = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    opt = adam(model, config)
     # Cosine decay to zero: a mixture density network's loss spikes now and then, and the last epoch's
     # weights are the ones kept, so end on small steps.
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=config.epochs)

@@ -3,7 +3,7 @@ and choices from the config classes (as LeRobot's commands parse theirs) instead
 
 from __future__ import annotations
 
-from dataclasses import field, fields
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 # The image encoders `learning.layers.image_encoder` builds.
@@ -25,3 +25,18 @@ def check_options(config: Any) -> None:
         if minimum is not None and value is not None and value < minimum:
             raise ValueError(f"{type(config).__name__}.{f.name} must be at least {minimum}, not {value!r}")
 
+
+
+@dataclass
+class TrainingConfig:
+    """What every trained model's configuration holds: Adam's step size and weight decay, the minibatch size, the
+    epochs and the seed. A model's config subclasses it, adds its own fields and may change a default or a help."""
+
+    lr: float = 1e-3
+    weight_decay: float = 0.0
+    batch_size: int = option(64, "minibatch size", minimum=1)
+    epochs: int = option(60, "training epochs", minimum=1)
+    seed: int = option(0, "seed of the initialisation and the minibatches")
+
+    def __post_init__(self):
+        check_options(self)

@@ -1,4 +1,5 @@
-"""Layers the project's models share: image encoders and the mixture density head (Bishop 1994).
+"""Layers the project's models share: image encoders, the mixture density head (Bishop 1994) and the MLP with that
+head over a latent state.
 
 The CNN policy, the goal scorers and the dynamics models all predict a mixture of Gaussians from features, so the
 head lives below all of them."""
@@ -96,3 +97,19 @@ class MixtureDensityHead(nn.Module):
     def mode(log_pi, mu, log_std) -> torch.Tensor:
         """The mean of the most probable component: a deterministic action."""
         return mu[torch.arange(len(mu)), log_pi.argmax(-1)]
+
+
+class MixtureDensityMLP(nn.Module):
+    """A vector (B, in_dim), standardised by the buffers `z_mean` and `z_std`, through two hidden layers to a mixture
+    density head: each controller's dynamics model and the latent goal score are this network over the VAE's latent."""
+
+    def __init__(self, in_dim: int, hidden_dim: int, out_dim: int, num_mixtures: int):
+        super().__init__()
+        self.trunk = nn.Sequential(nn.Linear(in_dim, hidden_dim), nn.ReLU(), nn.Linear(hidden_dim, hidden_dim),
+                                   nn.ReLU())
+        self.head = MixtureDensityHead(hidden_dim, out_dim, num_mixtures)
+        self.register_buffer("z_mean", torch.zeros(in_dim))
+        self.register_buffer("z_std", torch.ones(in_dim))
+
+    def forward(self, z: torch.Tensor):
+        return self.head(self.trunk((z - self.z_mean) / self.z_std))

@@ -56,6 +56,11 @@ def _sum_gradients(params: list[nn.Parameter]) -> None:
         p.grad = g.view_as(p).clone()
 
 
+def adam(model: nn.Module, config) -> torch.optim.Adam:
+    """Adam at a `TrainingConfig`'s step size and weight decay."""
+    return torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+
+
 def fit_epochs(model: nn.Module, optimizer: torch.optim.Optimizer, n: int, batch_size: int, epochs: int,
                loss_fn: Callable[[torch.Tensor], torch.Tensor], generator: torch.Generator, desc: str,
                progress: bool = True, schedule=None, postfix: str = "loss", digits: int = 3) -> list[float]:

@@ -1,7 +1,7 @@
 """Motion-planning controllers (paper: MP): pick the gear up, carry it to the peg, insert it open loop.
 
 Free-space motions are planned in joint space with OMPL's RRT-Connect against the scene's collision model
-(`policy_composer.policies.planning`) and time-parameterised to the joint velocity limits; approach, lift, descent and
+(`policies.planning`) and time-parameterised to the joint velocity limits; approach, lift, descent and
 retreat are straight TCP lines solved by IK. The plan is made once, when the controller starts, from the
 scene as it is then: the controllers are open loop, as the paper's planner was. The pick-up perceives the
 gear's position with an error along the fingers, so the gear sits in the hand off-centre by up to
@@ -16,6 +16,7 @@ import pinocchio as pin
 import sapien
 
 from policy_composer.policies.arm import Segment, np0
+from policy_composer.policies.mp.configuration_mp import MPConfig
 from policy_composer.policies.planning import (
     HeldObject,
     PlanningError,
@@ -30,8 +31,9 @@ class MotionPlanningController(SubtaskController):
     kind = "mp"
     action_kind = "joint_waypoints"
 
-    def __init__(self, env, subtask, **kwargs):
+    def __init__(self, env, subtask, config: MPConfig | None = None, **kwargs):
         super().__init__(env, subtask, **kwargs)
+        self.config = config or MPConfig()
         self.collision = SceneCollisionModel()
 
     def connect(self, obs, waypoints: list[Waypoint], seed):
@@ -43,8 +45,8 @@ class MotionPlanningController(SubtaskController):
         q, segments = self.q9(obs), []
         for wp in waypoints:
             if wp.kind == "free":
-                path = plan_rrt_connect(self.collision, q[:7], wp.q[:7])
-                traj = time_parameterize(path, 1.0 / self.rate_hz)
+                path = plan_rrt_connect(self.collision, q[:7], wp.q[:7], self.config.plan_checks)
+                traj = time_parameterize(path, 1.0 / self.rate_hz, self.config.speed)
             elif wp.kind == "line":
                 traj, _ = self.cartesian_line(q, wp)
             else:
@@ -77,6 +79,6 @@ class MotionPlanningController(SubtaskController):
 
 
 
-def build(env, subtask, model, max_grasp_offset: float) -> MotionPlanningController:
+def build(env, subtask, model, config: MPConfig, max_grasp_offset: float) -> MotionPlanningController:
     """The registry's builder (nothing trained: `model` is None)."""
-    return MotionPlanningController(env, subtask, max_grasp_offset=max_grasp_offset)
+    return MotionPlanningController(env, subtask, config, max_grasp_offset=max_grasp_offset)

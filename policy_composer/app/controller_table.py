@@ -15,10 +15,10 @@ from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 
+from policy_composer.app.stats import rate
 from policy_composer.data import atomic
 from policy_composer.policies.arm import Outcome, run_activation
 from policy_composer.policies.subtasks import TASK_SEQUENCE
-from policy_composer.stats import rate
 from policy_composer.tasks.spec import SUBTASK_COLUMNS
 
 SEQUENCES = {"pick": ("pick",), "move": ("move",), "insert": ("insert",), "full": TASK_SEQUENCE}
@@ -143,8 +143,8 @@ def evaluate_rows(rows: dict[str, tuple[str, ...]], sources, trials: int, first_
     import torch
     from tqdm import tqdm
 
+    from policy_composer.app.workers import run_episodes
     from policy_composer.policies.library import subtask_of
-    from policy_composer.workers import run_episodes
 
     torch.set_num_threads(1)
     items = []
@@ -179,7 +179,7 @@ def evaluate_table(kinds: list[str], sources, trials: int, first_seed: int = 0, 
                    clearance_mm: float = 2.0, progress: bool = True, workers: int = 1,
                    columns: tuple[str, ...] = SUBTASK_COLUMNS) -> dict[str, dict[str, Cell]]:
     """Rows of Table I: one for each of `kinds` (MP, DMP, CNN), then one for each LeRobot checkpoint in `sources`."""
-    from policy_composer.policies.lerobot_policy import lerobot_label
+    from policy_composer.policies.lerobot_policy.controller import lerobot_label
     from policy_composer.policies.library import names_of_kind
 
     rows = {kind: names_of_kind(kind) for kind in kinds}

@@ -11,10 +11,10 @@ from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from policy_composer.app.stats import rate
 from policy_composer.data import atomic, interrupt
 from policy_composer.data.lock import one_writer
 from policy_composer.selector.configuration import ComposeConfig
-from policy_composer.stats import rate
 
 if TYPE_CHECKING:  # the simulator and torch load when a run starts, not when the command line starts
     from policy_composer.selector.compose import ComposedEpisode
@@ -107,9 +107,9 @@ def compose_library(models: str | Path, sources, config: ComposeConfig, seeds: l
     import torch
     from tqdm import tqdm
 
+    from policy_composer.app.workers import in_process, run_episodes
     from policy_composer.policies.library import model_ids
     from policy_composer.selector.world_model import GearWorldModel
-    from policy_composer.workers import in_process, run_episodes
 
     out = Path(out)
     with one_writer(out):  # a second run into it stops at once

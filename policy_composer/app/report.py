@@ -11,7 +11,7 @@ import time
 from importlib import metadata
 from pathlib import Path
 
-from policy_composer.composition import (
+from policy_composer.app.composition import (
     PAPER_COMPOSED,
     back_offs,
     failure_table,
@@ -19,11 +19,11 @@ from policy_composer.composition import (
     progressive,
     sequence_counts,
 )
-from policy_composer.controller_table import Cell, table_row
+from policy_composer.app.controller_table import Cell, table_row
+from policy_composer.app.pipeline import StageRecord
+from policy_composer.app.stats import rate
 from policy_composer.data import atomic
-from policy_composer.pipeline import StageRecord
 from policy_composer.selector.compose import ComposedEpisode
-from policy_composer.stats import rate
 
 ASSETS = "report"  # folder beside report.md with the figures and videos it shows
 PAPER_CAMERAS = ("the head camera does not see the fine details of the movement which the forearm cameras do, "
@@ -87,7 +87,7 @@ th {{ background: #f2f2f2; }} img, video {{ max-width: 100%; }} code {{ backgrou
 
 def _header(profile, records: dict[str, StageRecord], wall_seconds: float, out: Path) -> str:
     ran = [r for r in records.values() if not r.reused]
-    readme = Path(__file__).resolve().parents[1] / "README.md"
+    readme = Path(__file__).resolve().parents[2] / "README.md"
     where = f"[the README's main-job section]({os.path.relpath(readme, out)}#the-main-job)" if readme.exists() else \
         "the main-job section of policy-composer's README"
     return "\n".join([

@@ -22,7 +22,7 @@ import numpy as np
 from policy_composer.data.atomic import replacing_folder
 from policy_composer.learning.checkpoint import CheckpointError, check_finite
 from policy_composer.policies.arm import Outcome, Segment, run_activation
-from policy_composer.policies.configuration_dmp import DMPConfig
+from policy_composer.policies.dmp.configuration_dmp import DMPConfig
 from policy_composer.policies.planning import VELOCITY_LIMIT, time_parameterize
 from policy_composer.policies.subtasks import SUBTASKS, TASK_SEQUENCE, SubtaskController, Waypoint
 
@@ -139,7 +139,7 @@ def fit_dmp_library(env, seeds: list[int], config: DMPConfig | None = None, prog
     """Run the motion planner through the full task on each seed and fit a DMP to each of its movements."""
     from tqdm import tqdm
 
-    from policy_composer.policies.motion_planning import MotionPlanningController
+    from policy_composer.policies.mp.controller import MotionPlanningController
 
     config = config or DMPConfig(dt=1.0 / float(env.unwrapped.control_freq))
     demos: dict[str, list[list[np.ndarray | None]]] = {n: [] for n in TASK_SEQUENCE}
@@ -172,6 +172,12 @@ def fit_dmp_library(env, seeds: list[int], config: DMPConfig | None = None, prog
 
 
 
-def build(env, subtask, library: DMPLibrary, max_grasp_offset: float) -> DMPController:
-    """The registry's builder: one subtask's controller from the fitted library."""
+def load(path) -> DMPLibrary:
+    """The registry's loader: the fitted library (its own configuration inside)."""
+    return DMPLibrary.load(path)
+
+
+def build(env, subtask, library: DMPLibrary, config: DMPConfig, max_grasp_offset: float) -> DMPController:
+    """The registry's builder: one subtask's controller from the fitted library, which runs at the configuration it
+    was fitted with."""
     return DMPController(env, subtask, library, max_grasp_offset=max_grasp_offset)

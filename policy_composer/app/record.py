@@ -52,8 +52,8 @@ def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None,
     import torch
     from tqdm import tqdm
 
+    from policy_composer.app.workers import Workers
     from policy_composer.data.recorder import LeRobotWriter
-    from policy_composer.workers import Workers
 
     torch.set_num_threads(1)  # the encoder threads need the second core
     root = Path(root)
@@ -189,7 +189,7 @@ class EpisodeRecorder:
     def _controller(self, controller, seed: int) -> RecordedEpisode | None:
         """One activation of `controller` from a start state inside its initiation set (the open-loop expert run,
         unrecorded, up to where the controller's subtask begins); failures are kept."""
-        from policy_composer.controller_table import start_state
+        from policy_composer.app.controller_table import start_state
         from policy_composer.policies.arm import run_activation
 
         buffer = self.buffer

@@ -5,11 +5,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from policy_composer.policies.registry import register_kind
+
 # The planner episodes the DMPs are fitted to start at this seed, apart from the seeds they are evaluated on.
 FIT_FIRST_SEED = 100
 FIT_EPISODES = 5
 
 
+@register_kind("dmp", label="DMP", subtasks=("pick", "move", "insert"), trained=True)
 @dataclass
 class DMPConfig:
     n_weights_per_dim: int = 10

@@ -15,8 +15,8 @@ import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
+from policy_composer.app.pipeline import Stage, StageRecord, run_stages
 from policy_composer.data.lock import one_writer
-from policy_composer.pipeline import Stage, StageRecord, run_stages
 from policy_composer.tasks.spec import CAMERA_NAMES as CAMERAS
 
 
@@ -162,7 +162,7 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
 def run_demo(profile: str = "quick", out: str | Path = "results",
              workers: int = 1) -> tuple[dict[str, StageRecord], Path]:
     """Run (or reuse) every stage under `out`/pipeline, then write `out`/report.md and report.html."""
-    from policy_composer.report import write_report
+    from policy_composer.app.report import write_report
 
     if profile not in PROFILES:
         raise ValueError(f"unknown profile {profile!r}: choose one of {', '.join(PROFILES)}")
@@ -176,8 +176,8 @@ def run_demo(profile: str = "quick", out: str | Path = "results",
 
 
 def _record(recipe, out: Path, episodes: int, resolution: int, workers: int, sources=None) -> dict:
+    from policy_composer.app.record import record_recipe
     from policy_composer.data.catalog import summarize
-    from policy_composer.record import record_recipe
     from policy_composer.tasks.spec import EnvSettings
 
     root = out / "dataset"
@@ -205,8 +205,8 @@ def _sources(inputs: dict[str, Path]):
 
 
 def _fit_dmp(out: Path, episodes: int) -> dict:
-    from policy_composer.policies.configuration_dmp import FIT_FIRST_SEED
-    from policy_composer.policies.dmp import fit_dmp_library
+    from policy_composer.policies.dmp.configuration_dmp import FIT_FIRST_SEED
+    from policy_composer.policies.dmp.controller import fit_dmp_library
     from policy_composer.tasks.rollout import make_env
 
     env = make_env("state_dict")
@@ -254,7 +254,7 @@ def _evaluate_goal(out: Path, inputs: dict[str, Path]) -> dict:
 
 
 def _table(out: Path, inputs: dict[str, Path], p: Profile, kinds: tuple[str, ...], workers: int) -> dict:
-    from policy_composer.controller_table import evaluate_table, write_table
+    from policy_composer.app.controller_table import evaluate_table, write_table
 
     rows = evaluate_table(list(kinds), _sources(inputs), p.table_trials, 0, p.resolution, workers=workers)
     write_table(rows, out)
@@ -266,7 +266,7 @@ def _table(out: Path, inputs: dict[str, Path], p: Profile, kinds: tuple[str, ...
 
 def _compose(out: Path, inputs: dict[str, Path], config, seeds: list[int], resolution: int,
              knock_out_step: int | None, workers: int) -> dict:
-    from policy_composer.composition import compose_library
+    from policy_composer.app.composition import compose_library
 
     episodes = compose_library(inputs["world-model"] / "world", _sources(inputs), config, seeds, out, videos=1,
                                resolution=resolution, knock_out_step=knock_out_step, resume=True,
@@ -276,7 +276,7 @@ def _compose(out: Path, inputs: dict[str, Path], config, seeds: list[int], resol
 
 
 def _mdp(out: Path, p: Profile) -> dict:
-    from policy_composer import mdp
+    from policy_composer.app import mdp
 
     levels = {"levels": p.mdp_levels} if p.mdp_levels else {}
     s19, heatmaps = mdp.run_experiments(out, p.mdp_episodes_19, p.mdp_episodes_100, **levels)

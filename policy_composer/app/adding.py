@@ -13,7 +13,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from policy_composer.controller_table import evaluate_controllers
+from policy_composer.app.controller_table import evaluate_controllers
 from policy_composer.data.features import read_sidecar
 from policy_composer.data.recipes import load_recipe
 from policy_composer.policies.library import LeRobotSource, LibraryError, LibrarySources, all_names
@@ -26,7 +26,7 @@ def add_lerobot_controller(source: LeRobotSource, rollouts: str | Path, demos: s
     `models`, and run it `trials` times on its subtask from seed `seed`. Returns the timings (s) and the cell."""
     import torch
 
-    from policy_composer.record import record_recipe
+    from policy_composer.app.record import record_recipe
     from policy_composer.selector.dynamics import load_dynamics
     from policy_composer.selector.train import train_world_model
 

@@ -1,0 +1,1 @@
+"""Dynamic movement primitives (paper: DMP), fitted to the motion planner's trajectories."""

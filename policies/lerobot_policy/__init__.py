@@ -1,0 +1,1 @@
+"""Any LeRobot policy checkpoint as a controller of the library."""

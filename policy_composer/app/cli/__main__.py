@@ -1,0 +1,5 @@
+import sys
+
+from policy_composer.app.cli import main
+
+sys.exit(main())

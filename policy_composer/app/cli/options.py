@@ -1,0 +1,96 @@
+"""What several command groups share: the env flags, the library's model flags, default paths."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from policy_composer.app.arguments import at_least, between
+from policy_composer.policies.library import MODELS, LeRobotSource, LibrarySources
+from policy_composer.policies.registry import LibraryError, kinds
+from policy_composer.tasks.spec import CLEARANCE_MM, GRASP_OFFSET_MM, RESOLUTION, EnvSettings
+
+DEFAULT_GRASP_OFFSET_MM = LibrarySources.max_grasp_offset * 1000  # the expert's and the pick-up's
+WORLD = str(MODELS / "world")  # the world model and goal scorers' folder
+# The command that trains each built-in kind's model, for the flags' help.
+TRAIN_COMMANDS = {"dmp": "policy-composer train dmp", "cnn": "policy-composer train policy"}
+
+
+def dataset_path(recipe: str) -> str:
+    return str(Path("datasets") / recipe)
+
+
+def library_sources(args: argparse.Namespace) -> LibrarySources:
+    """The library's model sources from the per-kind flags (`model_options`) and --lerobot."""
+    return LibrarySources(models={k.name: getattr(args, k.name) for k in kinds().values() if k.trained},
+                          lerobot=tuple(lerobot_source(spec) for spec in getattr(args, "lerobot", ())),
+                          max_grasp_offset=getattr(args, "grasp_offset", DEFAULT_GRASP_OFFSET_MM) / 1000.0)
+
+
+def lerobot_source(spec: str) -> LeRobotSource:
+    """--lerobot PATH:SUBTASK[:NAME], checked before any work starts."""
+    path, _, subtask = spec.rpartition(":")
+    subtasks = tuple(dict.fromkeys(s for k in kinds().values() for s in k.subtasks))
+    name = None
+    if subtask not in subtasks and path.rpartition(":")[2] in subtasks:  # PATH:SUBTASK:NAME
+        (path, _, subtask), name = path.rpartition(":"), subtask
+    if not path or subtask not in subtasks:
+        raise LibraryError(f"--lerobot {spec!r}: give PATH:SUBTASK or PATH:SUBTASK:NAME, SUBTASK one of "
+                           f"{', '.join(subtasks)}")
+    if name is not None and not name.isidentifier():
+        raise LibraryError(f"--lerobot {spec!r}: the controller's name must be letters, digits and _, not {name!r}")
+    if not (Path(path) / "config.json").is_file():
+        raise LibraryError(f"--lerobot {spec!r}: no LeRobot policy checkpoint at {path} (expected the "
+                           f"`pretrained_model` folder that lerobot-train saves, with its config.json)")
+    return LeRobotSource(path, subtask, name)
+
+
+def make_env(obs_mode: str, args: argparse.Namespace, cameras: tuple[str, ...] | None = None, **kwargs):
+    from policy_composer.tasks.rollout import make_env
+
+    return make_env(obs_mode, args.resolution, args.clearance, cameras, **kwargs)
+
+
+def make_expert(env, args: argparse.Namespace):
+    from policy_composer.tasks.gear_expert import ExpertConfig, GearAssemblyExpert
+
+    return GearAssemblyExpert(env, ExpertConfig(grasp_offset=args.grasp_offset / 1000.0,
+                                                closed_loop=not getattr(args, "open_loop", False)))
+
+
+def training_threads(threads: int) -> None:
+    """--threads, shared among the processes when `accelerate launch` runs the training data-parallel."""
+    import torch
+
+    from policy_composer.learning.training import threads_per_process
+
+    torch.set_num_threads(threads_per_process(threads))
+
+
+
+def env_options(p: argparse.ArgumentParser, grasp: bool = True) -> None:
+    p.add_argument("--resolution", type=between(*RESOLUTION, " pixels", int), default=EnvSettings.resolution,
+                   help="camera width and height in pixels")
+    p.add_argument("--clearance", type=between(*CLEARANCE_MM, " mm"), default=EnvSettings.clearance_mm,
+                   help="radial clearance between peg and hole, mm")
+    if grasp:
+        p.add_argument("--grasp-offset", type=between(*GRASP_OFFSET_MM, " mm"), default=DEFAULT_GRASP_OFFSET_MM,
+                       help="max grasp offset of the gear in the gripper, mm")
+    p.add_argument("--seed", type=at_least(0), default=0, help="first seed")
+
+
+def workers_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--workers", type=at_least(1), default=None,
+                   help="processes running episodes side by side, each with its own env (default: the usable "
+                        "cores); the results are the same for any number")
+
+
+def model_options(p: argparse.ArgumentParser) -> None:
+    """--KIND for every registered kind that loads a trained model, and --lerobot checkpoints."""
+    for kind in kinds().values():
+        if kind.trained:
+            trained_by = TRAIN_COMMANDS.get(kind.name, "its own training")
+            p.add_argument(f"--{kind.name}", default=str(MODELS / kind.name), help=f"{kind.label} model ({trained_by})")
+    p.add_argument("--lerobot", action="append", default=[], metavar="PATH:SUBTASK[:NAME]",
+                   help="a lerobot checkpoint as controller NAME (default lerobot_SUBTASK) for SUBTASK (it "
+                        "needs its own dynamics model to be composed: `policy-composer library add`)")

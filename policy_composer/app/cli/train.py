@@ -1,0 +1,111 @@
+"""`train`: the library's learned controllers (CNN policies, DMPs), the world model and the goal scores."""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from policy_composer.app.arguments import add_config_options, at_least, config_from
+from policy_composer.app.cli.options import WORLD, dataset_path, env_options, make_env, training_threads
+from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
+from policy_composer.policies.dmp.configuration_dmp import FIT_EPISODES, FIT_FIRST_SEED
+from policy_composer.policies.library import MODELS
+from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
+from policy_composer.tasks.spec import CAMERA_NAMES
+
+
+def cmd_train_policy(args: argparse.Namespace) -> int:
+    """Behaviour-clone the CNN policy of one subtask on its demonstrations."""
+    from policy_composer.policies.cnn.configuration_cnn import DEMONSTRATIONS
+    from policy_composer.policies.cnn.train import train_cnn_policy
+
+    training_threads(args.threads)
+    config = config_from(args, CNNPolicyConfig)
+    dataset = args.dataset or dataset_path(DEMONSTRATIONS[config.subtask][0])
+    out = args.out or str(MODELS / "cnn" / config.subtask)
+    t0 = time.time()
+    _, losses = train_cnn_policy(dataset, config, out=out)
+    print(f"trained {out} in {time.time() - t0:.0f} s: nll {losses[0]:.3f} -> {losses[-1]:.3f} "
+          f"over {len(losses)} epochs")
+    return 0
+
+
+def cmd_train_dmp(args: argparse.Namespace) -> int:
+    """Fit the DMP library to the motion planner's trajectories."""
+    from policy_composer.policies.dmp.controller import fit_dmp_library
+
+    env = make_env("state_dict", args)
+    t0 = time.time()
+    library = fit_dmp_library(env, seeds=list(range(args.seed, args.seed + args.episodes)))
+    library.save(args.out)
+    env.close()
+    print(f"fitted DMPs to {args.episodes} planner episodes in {time.time() - t0:.0f} s -> {args.out}")
+    return 0
+
+
+def cmd_train_world_model(args: argparse.Namespace) -> int:
+    """The VAE and one dynamics model per controller (paper: Controller Dynamics Modelling)."""
+    from policy_composer.selector.train import train_world_model
+
+    training_threads(args.threads)
+    timings = train_world_model(
+        args.rollouts, args.demos, args.out, config_from(args, VAEConfig), config_from(args, DynamicsConfig),
+        controllers=args.controllers.split(",") if args.controllers else None, reuse_vae=args.reuse_vae)
+    for what, seconds in timings.items():
+        print(f"trained {what} in {seconds:.0f} s")
+    return 0
+
+
+def cmd_train_goal_score(args: argparse.Namespace) -> int:
+    """One goal scorer per camera on the training full-task demos (paper: Goal Score Evaluation)."""
+    from policy_composer.selector.train import train_goal_scores
+
+    training_threads(args.threads)
+    config = config_from(args, GoalScoreConfig)
+    for what, seconds in train_goal_scores(args.demos, args.out, tuple(args.cameras.split(",")), config).items():
+        print(f"trained {what} in {seconds:.0f} s")
+    return 0
+
+
+
+def add_commands(sub) -> None:
+    train = sub.add_parser("train", help="train the library's learned controllers")
+    tr_sub = train.add_subparsers(dest="what", required=True)
+    tr_policy = tr_sub.add_parser("policy", help="behaviour-clone a CNN + MDN policy (cnn_pick, cnn_move, cnn_insert)")
+    tr_policy.add_argument("--dataset", help="its demonstrations (default: datasets/gear-insertion-demos for the "
+                           "insertion, datasets/gear-transport-demos for the pick-up and the move)")
+    add_config_options(tr_policy, CNNPolicyConfig, {
+        "subtask": "subtask", "camera": "camera", "backbone": "backbone", "epochs": "epochs",
+        "image_size": "image-size", "num_mixtures": "mixtures", "action_space": "action-space",
+        "proprioception": "proprioception", "shift": "shift", "batch_size": "batch-size", "seed": "seed"})
+    tr_policy.add_argument("--threads", type=at_least(1), default=2)
+    tr_policy.add_argument("--out", help=f"checkpoint folder (default: {MODELS / 'cnn'}/SUBTASK, where the "
+                           "library's CNN model looks)")
+    tr_policy.set_defaults(func=cmd_train_policy)
+    tr_dmp = tr_sub.add_parser("dmp", help="fit the DMPs to the motion planner's trajectories")
+    env_options(tr_dmp, grasp=False)
+    tr_dmp.add_argument("--episodes", type=at_least(1), default=FIT_EPISODES, help="planner episodes to fit to")
+    tr_dmp.set_defaults(seed=FIT_FIRST_SEED)
+    tr_dmp.add_argument("--out", default=str(MODELS / "dmp"))
+    tr_dmp.set_defaults(func=cmd_train_dmp)
+
+    tr_world = tr_sub.add_parser("world-model", help="the VAE and one latent dynamics model per controller")
+    tr_world.add_argument("--rollouts", default=dataset_path("gear-controller-rollouts"))
+    tr_world.add_argument("--demos", default=dataset_path("gear-full-task-demos"))
+    add_config_options(tr_world, VAEConfig, {"camera": "camera", "image_size": "image-size", "latent_dim": "latent-dim",
+                                             "epochs": "vae-epochs"})
+    add_config_options(tr_world, DynamicsConfig, {"epochs": "dynamics-epochs", "frame_skip": "frame-skip",
+                                                  "num_mixtures": "mixtures"})
+    tr_world.add_argument("--controllers", default=None, help="comma-separated (default: every controller recorded)")
+    tr_world.add_argument("--reuse-vae", action="store_true", help="keep the VAE in --out; train only dynamics models")
+    tr_world.add_argument("--threads", type=at_least(1), default=2)
+    tr_world.add_argument("--out", default=WORLD)
+    tr_world.set_defaults(func=cmd_train_world_model)
+    tr_goal = tr_sub.add_parser("goal-score", help="one goal scorer per camera on the full-task demos")
+    tr_goal.add_argument("--demos", default=dataset_path("gear-full-task-demos"))
+    tr_goal.add_argument("--cameras", default=",".join(CAMERA_NAMES))
+    add_config_options(tr_goal, GoalScoreConfig, {"epochs": "epochs", "image_size": "image-size",
+                                                  "num_mixtures": "mixtures"})
+    tr_goal.add_argument("--threads", type=at_least(1), default=2)
+    tr_goal.add_argument("--out", default=WORLD, help="the world-model folder (its VAE, if any, is used)")
+    tr_goal.set_defaults(func=cmd_train_goal_score)
