@@ -1,5 +1,8 @@
+import contextlib
 import hashlib
+import io
 import os
+import subprocess
 from pathlib import Path
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
@@ -7,7 +10,7 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 import gymnasium as gym
 import pytest
 
-import policy_composer.tasks.gear_assembly  # noqa: F401  (registers GearAssembly-v1)
+import policy_composer.tasks  # noqa: F401  (registers GearAssembly-v1; the simulator loads at the first gym.make)
 
 
 @pytest.fixture(scope="session")
@@ -62,7 +65,6 @@ def controller_rollouts(tmp_path_factory):
 
 def lerobot_train(insertion_demos, out: Path, policy: str, *args: str):
     """lerobot-train's `policy`, two steps on the insertion demos: (the pretrained_model folder, the trainer's log)."""
-    import subprocess
     import sys
 
     cmd = [str(Path(sys.executable).parent / "lerobot-train"), f"--dataset.repo_id=local/{insertion_demos.name}",
@@ -88,6 +90,25 @@ def diffusion_checkpoint(insertion_demos, tmp_path_factory):
                          "--policy.crop_shape=[56,56]", "--policy.n_obs_steps=2", "--policy.horizon=16",
                          "--policy.n_action_steps=8", "--policy.drop_n_last_frames=7", "--policy.down_dims=[16,32]",
                          "--policy.noise_scheduler_type=DDIM", "--policy.num_inference_steps=2")
+
+
+def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    """`policy-composer ARGS` in this process, as a user sees it: its exit code, stdout and stderr. In-process, a
+    command costs what it does, not a fresh interpreter importing torch and the simulator; a raised exception (what
+    a user would see as a traceback) fails the test."""
+    from policy_composer.app.cli import main
+
+    stdout, stderr, before = io.StringIO(), io.StringIO(), os.getcwd()
+    os.chdir(cwd or Path.cwd())
+    try:
+        with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+            try:
+                code = main(list(args))
+            except SystemExit as e:  # argparse's refusals
+                code = e.code
+    finally:
+        os.chdir(before)
+    return subprocess.CompletedProcess(["policy-composer", *args], code, stdout.getvalue(), stderr.getvalue())
 
 
 def tree_digest(root: Path) -> dict[str, str]:

@@ -8,6 +8,7 @@ import shutil
 
 import pytest
 import torch
+from conftest import run_cli
 
 from policy_composer.app.adding import add_lerobot_controller
 from policy_composer.policies.library import LeRobotSource, LibraryError
@@ -48,16 +49,9 @@ def test_a_lerobot_checkpoint_joins_the_library(act_checkpoint, controller_rollo
 
 def test_a_lerobot_checkpoint_gets_its_own_row_in_table_one(act_checkpoint, tmp_path):
     """`evaluate controllers --lerobot` adds a row named after the checkpoint's policy type, beside MP, DMP, CNN."""
-    import os
-    import subprocess
-    import sys
-    from pathlib import Path
-
     checkpoint, _ = act_checkpoint
-    exe = Path(sys.executable).parent / "policy-composer"
-    res = subprocess.run([str(exe), "evaluate", "controllers", "--kinds", "", "--lerobot", f"{checkpoint}:insert",
-                          "--trials", "1", "--resolution", "32", "--workers", "1", "--out", str(tmp_path)],
-                         capture_output=True, text=True, timeout=600, env={**os.environ, "HF_HUB_OFFLINE": "1"})
+    res = run_cli("evaluate", "controllers", "--kinds", "", "--lerobot", f"{checkpoint}:insert", "--trials", "1",
+                  "--resolution", "32", "--workers", "1", "--out", str(tmp_path))
     assert res.returncode == 0, res.stderr[-2000:]
     table = (tmp_path / "controllers.md").read_text()
     row = next(line for line in table.splitlines() if line.startswith("| ACT (LeRobot) |"))

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import imageio.v3 as iio
 import pytest
-from conftest import tree_digest
+from conftest import run_cli, tree_digest
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -24,12 +24,6 @@ def test_expert_prints_success_and_writes_a_three_camera_video(tmp_path):
     assert "seed 2: success" in out.stdout and "expert success: 1/1" in out.stdout
     frames = iio.imread(tmp_path / "expert_seed2.mp4")
     assert frames.shape[1:] == (64, 3 * 64, 3) and len(frames) > 50
-
-
-def run_cli(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:
-    exe = Path(sys.executable).parent / "policy-composer"
-    return subprocess.run([str(exe), *args], cwd=cwd, capture_output=True, text=True, timeout=120,
-                          env={**os.environ, "HF_HUB_OFFLINE": "1"})
 
 
 @pytest.mark.parametrize("args, message", [
@@ -70,7 +64,8 @@ def test_compose_does_not_overwrite_a_finished_run(tmp_path):
         {"seed": 0, "success": True, "steps": 10, "knocked_out": False, "activations": [], "decisions": []}) + "\n")
     (out / "summary.md").write_text("composed: 1/1\n")
     before = tree_digest(out)
-    result = run_cli("compose", "--episodes", "1", "--out", str(out), "--models", str(tmp_path / "no-models"))
+    result = run_cli("compose", "--episodes", "1", "--out", str(out), "--models", str(tmp_path / "no-models"),
+                     cwd=tmp_path)
     assert result.returncode == 2 and "holds a composed run (1 episodes); continue it with --resume" in result.stderr
     assert tree_digest(out) == before
 

@@ -4,7 +4,6 @@ the encoder; a video that lost a frame is refused by every reader and by the mai
 from __future__ import annotations
 
 import shutil
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -12,7 +11,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pytest
-from conftest import tree_digest
+from conftest import run_cli, tree_digest
 
 from policy_composer.app.pipeline import MARKER, Stage, run_stages
 from policy_composer.data import recorder
@@ -138,8 +137,7 @@ def damaged(insertion_demos, tmp_path) -> tuple[Path, Path]:
 
 def test_every_reader_refuses_a_video_one_frame_short(damaged):
     root, video = damaged
-    res = subprocess.run([str(BIN / "policy-composer"), "dataset", "info", str(root)], capture_output=True,
-                         text=True, timeout=300)
+    res = run_cli("dataset", "info", str(root))
     assert res.returncode == 2, res.stderr
     assert res.stderr.count("\n") == 1 and "Traceback" not in res.stderr
     assert str(video.relative_to(root)) in res.stderr and "episode 1, camera head" in res.stderr

@@ -3,15 +3,12 @@ checkpoint runs as a controller; the per-controller table command."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
-from pathlib import Path
-
 import gymnasium as gym
 import numpy as np
 import pytest
 import sapien
 import torch
+from conftest import run_cli
 from transforms3d.quaternions import quat2mat
 
 from policy_composer.app.controller_table import start_state
@@ -234,13 +231,14 @@ def test_lerobot_policy_runs_as_a_controller(policy, rgb_env, request):
 
 
 def test_controller_table_command(tmp_path):
-    cmd = [str(Path(sys.executable).parent / "policy-composer"), "evaluate", "controllers", "--kinds", "MP",
-           "--trials", "1", "--seed", "1", "--out", str(tmp_path)]
-    out = subprocess.run(cmd, capture_output=True, text=True, check=True, timeout=600).stdout
+    cmd = ["evaluate", "controllers", "--kinds", "MP", "--trials", "1", "--seed", "1", "--out", str(tmp_path)]
+    result = run_cli(*cmd)
+    assert result.returncode == 0, result.stderr[-2000:]
+    out = result.stdout
     one = "1/1 (95% CI 21-100%)"  # a single trial says little, and the interval says so
     assert f"MP: pick {one}, move {one}, insert {one}, full {one}" in out
     table = (tmp_path / "controllers.md").read_text()
     assert f"| MP | {one}; paper 10/10 | {one}; paper 10/10 | {one}; paper 1/10 | {one}; paper 1/10 |" in table
     assert (tmp_path / "controllers.csv").read_text().count("\n") == 5
-    only = subprocess.run(cmd + ["--subtasks", "insert"], capture_output=True, text=True, check=True, timeout=600)
+    only = run_cli(*cmd, "--subtasks", "insert")
     assert f"MP: pick -, move -, insert {one}, full -" in only.stdout  # one column asked for, one column run

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import run_cli
 
 from policy_composer.tasks.lerobot_env import TASKS, GearAssemblyLeRobotEnv
 from policy_composer.tasks.spec import CAMERA_NAMES
@@ -107,12 +108,9 @@ def test_lerobots_viewer_opens_our_dataset(insertion_demos, tmp_path):
     cameras = {f"/observation.images.{c}" for c in CAMERA_NAMES}
     lerobots = recorded_entities(tmp_path / "lerobot" / "local_gear-insertion-demos_episode_1.rrd")
     assert cameras | {"/state", "/action", "/next.success", "/next.done"} <= lerobots, sorted(lerobots)
-    res = subprocess.run([str(Path(sys.executable).parent / "policy-composer"), "dataset", "view", str(insertion_demos),
-                          "--episode", "1", "--out", str(tmp_path / "ours")], capture_output=True, text=True,
-                         timeout=300)
+    res = run_cli("dataset", "view", str(insertion_demos), "--episode", "1", "--out", str(tmp_path / "ours"))
     assert res.returncode == 0, res.stderr[-3000:]
     ours = recorded_entities(tmp_path / "ours" / "local_gear-insertion-demos_episode_1.rrd")
     assert lerobots | {"/progress", "/stage", "/controller"} <= ours, sorted(ours)
-    res = subprocess.run([str(Path(sys.executable).parent / "policy-composer"), "dataset", "view", str(insertion_demos),
-                          "--episode", "5"], capture_output=True, text=True, timeout=300)
+    res = run_cli("dataset", "view", str(insertion_demos), "--episode", "5")
     assert res.returncode == 2 and "has episodes 0 to 1, not 5" in res.stderr, res.stderr[-2000:]

@@ -4,13 +4,11 @@ from __future__ import annotations
 
 import csv
 import json
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from conftest import run_cli
 
 from policy_composer.app.mdp import MDPConfig, expected_activations, make_selector, run_mdp
 from policy_composer.policies.base import InitiationError
@@ -93,9 +91,10 @@ def test_noise_hurts_and_seeded_runs_repeat():
 
 
 def test_mdp_command_writes_tables_figures_and_report(tmp_path):
-    cmd = [str(Path(sys.executable).parent / "policy-composer"), "mdp", "--out", str(tmp_path), "--episodes-19", "100",
-           "--episodes-100", "4", "--noise-unit", "lookahead"]
-    out = subprocess.run(cmd, capture_output=True, text=True, check=True, timeout=600).stdout
+    result = run_cli("mdp", "--out", str(tmp_path), "--episodes-19", "100", "--episodes-100", "4", "--noise-unit",
+                     "lookahead")
+    assert result.returncode == 0, result.stderr[-2000:]
+    out = result.stdout
     assert "planning steps" in out and "report:" in out
     for name in ("mdp19_solution.png", "mdp19_episodes.csv", "mdp19_trace.json", "mdp100_heatmap_lookahead.png",
                  "mdp100_heatmap_lookahead.csv", "mdp_report.md"):

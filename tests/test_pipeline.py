@@ -16,6 +16,7 @@ from html import unescape
 from pathlib import Path
 
 import pytest
+from conftest import run_cli
 
 from policy_composer.app.pipeline import MARKER, Stage, run_stages
 from policy_composer.data.interrupt import flag_interrupts
@@ -176,12 +177,12 @@ def test_the_main_job_runs_every_stage_reuses_them_and_writes_a_report_a_browser
     interrupted = _interrupt_once_a_full_task_demo_is_saved(cmd, env, tmp_path)
     assert interrupted.returncode == 130 and "run the same command again to resume" in interrupted.stderr, \
         _messages(interrupted.stderr)[-4000:]
-    first = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=env, timeout=1200)
+    first = run_cli(*cmd[1:], cwd=ROOT)  # resumed in-process: only the interrupt needs a process of its own
     assert first.returncode == 0, first.stdout[-3000:] + _messages(first.stderr)[-4000:]
     resumed = [line for line in first.stdout.splitlines() if line.startswith("[")]
     assert ": reused " in resumed[0] and ": reused " in resumed[1]  # the demos finished before the interrupt
     assert resumed[2].startswith("[3/12] record the full-task") and resumed[2].endswith("(resuming)"), resumed[2]
-    second = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=env, timeout=600)
+    second = run_cli(*cmd[1:], cwd=ROOT)
     assert second.returncode == 0, _messages(second.stderr)[-4000:]
     stage_lines = [line for line in second.stdout.splitlines() if line.startswith("[")]
     assert len(stage_lines) == 12 and all(": reused " in line for line in stage_lines), second.stdout

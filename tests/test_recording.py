@@ -17,7 +17,7 @@ import numpy as np
 import psutil
 import pytest
 import torch
-from conftest import tree_digest
+from conftest import run_cli, tree_digest
 
 import policy_composer.tasks.gear_assembly  # noqa: F401  (registers GearAssembly-v1)
 from policy_composer.app.record import record_recipe
@@ -329,8 +329,8 @@ def test_interrupted_recording_keeps_finished_episodes_and_resumes(insertion_dem
     assert kept == 1 or (workers > 1 and kept == 2)
     assert ds.num_frames == sum(json.loads((root / "meta/policy_composer.json").read_text())[
         "episodes"][i]["length"] for i in range(kept))
-    subprocess.run(_record_cmd(root, 2, "--resume", "--workers", str(workers)), env=env, check=True,
-                   capture_output=True)
+    resumed = run_cli(*_record_cmd(root, 2, "--resume", "--workers", str(workers))[1:])
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
     ds = open_dataset(root)
     sidecar = json.loads((root / "meta" / "policy_composer.json").read_text())
     seeds = [e["seed"] for e in sidecar["episodes"]]

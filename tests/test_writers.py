@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import tree_digest
+from conftest import run_cli, tree_digest
 
 from policy_composer.app.composition import RunError, VideoWriter, begin_run, compose_library
 from policy_composer.data.features import read_info
@@ -27,11 +27,6 @@ from policy_composer.selector.configuration import ComposeConfig
 BIN = Path(sys.executable).parent
 HOLD = "import sys, time; from policy_composer.data.lock import one_writer\nwith one_writer(sys.argv[1]):\n" \
        "    print('held', flush=True); time.sleep(600)"
-
-
-def cli(*args: str, cwd: Path | None = None, timeout: int = 300) -> subprocess.CompletedProcess:
-    return subprocess.run([str(BIN / "policy-composer"), *args], cwd=cwd, capture_output=True, text=True,
-                          timeout=timeout, env={**os.environ, "HF_HUB_OFFLINE": "1"})
 
 
 def one_line_error(res: subprocess.CompletedProcess) -> str:
@@ -60,13 +55,13 @@ def test_a_second_writer_is_refused_at_once_and_the_first_ones_data_stays(insert
     before = tree_digest(root)
     with holder(root) as proc:
         t0 = time.perf_counter()
-        line = one_line_error(cli("record", "gear-insertion-demos", "--episodes", "4", "--resume", "--root",
+        line = one_line_error(run_cli("record", "gear-insertion-demos", "--episodes", "4", "--resume", "--root",
                                   str(root)))
         assert f"{root} is being written by another process (pid {proc.pid})" in line
         assert time.perf_counter() - t0 < 60  # at once: no episode was run
         with pytest.raises(FolderBusy, match=f"pid {proc.pid}"):
             compose_library(tmp_path / "no-models", None, ComposeConfig(), [0], root)
-        assert cli("dataset", "info", str(root)).returncode == 0  # readers are not blocked
+        assert run_cli("dataset", "info", str(root)).returncode == 0  # readers are not blocked
     assert tree_digest(root) == before
 
 
@@ -96,7 +91,7 @@ def test_a_bad_recipe_file_is_refused_before_anything_is_written(tmp_path, text,
     else:  # the rest of a valid recipe, so that only the name is wrong
         recipe.write_text(text + "".join(f'{k} = {json.dumps(getattr(base, k))}\n'
                                          for k in ("description", "task", "episodes", "driver", "start")))
-    line = one_line_error(cli("record", str(recipe), "--episodes", "1", cwd=recipe.parent))
+    line = one_line_error(run_cli("record", str(recipe), "--episodes", "1", cwd=recipe.parent))
     assert message in line and ("TOML" not in message or str(recipe) in line)
     assert sorted(p.name for p in tmp_path.rglob("*")) == ["a", "b", "recipe.toml"]
 
@@ -117,7 +112,7 @@ def small_disk(path: Path, size: str, read_only: bool = False):
 def test_a_full_disk_mid_episode_leaves_the_dataset_as_it_was(tmp_path):
     with small_disk(tmp_path / "disk", "64m") as disk:
         root = disk / "demos"
-        res = cli("record", "gear-insertion-demos", "--episodes", "1", "--resolution", "32", "--root", str(root))
+        res = run_cli("record", "gear-insertion-demos", "--episodes", "1", "--resolution", "32", "--root", str(root))
         assert res.returncode == 0, res.stderr[-2000:]
         before = tree_digest(root)
         # The disk fills up, but for room to begin the next episode's save.
@@ -127,17 +122,17 @@ def test_a_full_disk_mid_episode_leaves_the_dataset_as_it_was(tmp_path):
                     f.write(b"\0" * 4096)
                     f.flush()
             f.truncate(f.tell() - 64 * 1024)
-        line = one_line_error(cli("record", "gear-insertion-demos", "--episodes", "2", "--resume", "--root",
+        line = one_line_error(run_cli("record", "gear-insertion-demos", "--episodes", "2", "--resume", "--root",
                                   str(root)))
         assert "No space left on device" in line, line
         assert tree_digest(root) == before and read_info(root)["total_episodes"] == 1
         (disk / "filler").unlink()
-        assert cli("dataset", "info", str(root)).returncode == 0
+        assert run_cli("dataset", "info", str(root)).returncode == 0
 
 
 def test_a_read_only_disk_is_one_line(tmp_path):
     with small_disk(tmp_path / "ro", "1m", read_only=True) as disk:
-        line = one_line_error(cli("record", "gear-insertion-demos", "--episodes", "1", "--root",
+        line = one_line_error(run_cli("record", "gear-insertion-demos", "--episodes", "1", "--root",
                                   str(disk / "demos")))
         assert "Read-only file system" in line and str(disk) in line
 
@@ -151,12 +146,12 @@ def test_a_damaged_data_file_is_named_by_dataset_info(insertion_demos, tmp_path)
     raw = bytearray(data.read_bytes())
     raw[len(raw) // 3:len(raw) // 3 + 64] = b"\xff" * 64
     data.write_bytes(bytes(raw))
-    line = one_line_error(cli("dataset", "info", str(root)))
+    line = one_line_error(run_cli("dataset", "info", str(root)))
     assert f"{data} does not hold what was recorded (its SHA-256 differs" in line
 
 
 def test_world_model_controllers_are_those_recorded(controller_rollouts, full_task_demos, tmp_path):
-    line = one_line_error(cli("train", "world-model", "--rollouts", str(controller_rollouts), "--demos",
+    line = one_line_error(run_cli("train", "world-model", "--rollouts", str(controller_rollouts), "--demos",
                               str(full_task_demos), "--controllers", "mp_pick,nosuch", "--out", str(tmp_path / "w")))
     assert "holds no rollouts of nosuch: --controllers takes the controllers it recorded, mp_pick, mp_insert" in line
     assert not (tmp_path / "w").exists()
@@ -179,7 +174,7 @@ def test_run_files_that_do_not_read_or_no_longer_fit(tmp_path):
 def test_recording_over_a_dataset_without_resume_is_one_line(insertion_demos, tmp_path):
     root = tmp_path / "demos"
     shutil.copytree(insertion_demos, root)
-    line = one_line_error(cli("record", "gear-insertion-demos", "--episodes", "1", "--root", str(root)))
+    line = one_line_error(run_cli("record", "gear-insertion-demos", "--episodes", "1", "--root", str(root)))
     assert f"{root} already exists (2 episodes); pass --resume to append to it" in line
 
 
