@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import run_cli
 from safetensors.torch import load_file
 
 BIN = Path(sys.executable).parent
@@ -21,8 +22,8 @@ def test_two_processes_train_the_one_process_model(insertion_demos, tmp_path):
     train = ["train", "policy", "--subtask", "insert", "--dataset", str(insertion_demos), "--epochs", "3",
              "--image-size", "32", "--mixtures", "4", "--shift", "0", "--batch-size", "32", "--threads", "2"]
     env = {**os.environ, "HF_HUB_OFFLINE": "1"}
-    subprocess.run([str(BIN / "policy-composer"), *train, "--out", str(tmp_path / "one")], env=env, check=True,
-                   capture_output=True)
+    one = run_cli(*train, "--out", str(tmp_path / "one"))  # one process: this one
+    assert one.returncode == 0, one.stderr[-3000:]
     launch = [str(BIN / "accelerate"), "launch", "--multi_gpu", "--num_processes", "2", "--num_machines", "1",
               "--mixed_precision", "no", "--dynamo_backend", "no"]
     res = subprocess.run([*launch, str(BIN / "policy-composer"), *train, "--out", str(tmp_path / "two")], env=env,

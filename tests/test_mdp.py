@@ -2,13 +2,9 @@
 
 from __future__ import annotations
 
-import csv
-import json
-
 import numpy as np
 import pytest
 import torch
-from conftest import run_cli
 
 from policy_composer.app.mdp import MDPConfig, expected_activations, make_selector, run_mdp
 from policy_composer.policies.base import InitiationError
@@ -88,20 +84,3 @@ def test_noise_hurts_and_seeded_runs_repeat():
     assert not np.array_equal(a.activations, other.activations)
     exact = run_mdp(MDPConfig(num_states=19, start=1, p_dyn=0.0, p_goal=0.0, episodes=300, seed=11))
     assert a.mean_activations > exact.mean_activations + 0.5 and a.success.mean() < 1.0
-
-
-def test_mdp_command_writes_tables_figures_and_report(tmp_path):
-    result = run_cli("mdp", "--out", str(tmp_path), "--episodes-19", "100", "--episodes-100", "4", "--noise-unit",
-                     "lookahead")
-    assert result.returncode == 0, result.stderr[-2000:]
-    out = result.stdout
-    assert "planning steps" in out and "report:" in out
-    for name in ("mdp19_solution.png", "mdp19_episodes.csv", "mdp19_trace.json", "mdp100_heatmap_lookahead.png",
-                 "mdp100_heatmap_lookahead.csv", "mdp_report.md"):
-        assert (tmp_path / name).stat().st_size > 0, name
-    with open(tmp_path / "mdp100_heatmap_lookahead.csv") as f:
-        rows = list(csv.DictReader(f))
-    assert len(rows) == 81 and {float(r["p_dyn"]) for r in rows} == {0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8}
-    trace = json.loads((tmp_path / "mdp19_trace.json").read_text())
-    assert trace[-1]["reached"] in (0, 20) and set(trace[0]["predicted_mean"]) == {"c1", "c2", "c3", "c4", "c5"}
-    assert "| 19 states from state 1, p = 0.2" in (tmp_path / "mdp_report.md").read_text()

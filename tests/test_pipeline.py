@@ -3,6 +3,7 @@ and its report rendered with its figures and videos in a real headless browser."
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import re
@@ -193,6 +194,24 @@ def test_the_main_job_runs_every_stage_reuses_them_and_writes_a_report_a_browser
                 "(95% CI ", "| composed (selector) | picked ", " frames/s", " episodes/s", " trials/s"):
         assert row in report, f"{row!r} missing from the report"
     assert "0 of 12 stages ran" in report
+
+    # Table I's stage: every kind's row, each cell one trial with its interval beside the paper's.
+    table = next((tmp_path / "pipeline").glob("table-*"))
+    rows = {line.split(" | ")[0]: line for line in (table / "controllers.md").read_text().splitlines()
+            if line.startswith("| ") and "/1 (95% CI " in line}
+    assert set(rows) == {"| MP", "| DMP", "| CNN"} and all(r.count("/1 (95% CI ") == 4 for r in rows.values()), rows
+    assert "; paper 10/10 |" in rows["| MP"] and (table / "controllers.csv").read_text().count("\n") == 1 + 3 * 4
+    # The MDP stage: both experiments' tables, figures, trace and report.
+    mdp = next((tmp_path / "pipeline").glob("mdp-*"))
+    for name in ("mdp19_solution.png", "mdp19_episodes.csv", "mdp19_trace.json", "mdp100_heatmap_lookahead.png",
+                 "mdp100_heatmap_step.csv", "mdp_report.md"):
+        assert (mdp / name).stat().st_size > 0, name
+    with open(mdp / "mdp100_heatmap_lookahead.csv") as f:
+        assert {(float(r["p_dyn"]), float(r["p_goal"])) for r in csv.DictReader(f)} == {
+            (a, b) for a in (0.0, 0.4, 0.8) for b in (0.0, 0.4, 0.8)}
+    trace = json.loads((mdp / "mdp19_trace.json").read_text())
+    assert trace[-1]["reached"] in (0, 20) and set(trace[0]["predicted_mean"]) == {"c1", "c2", "c3", "c4", "c5"}
+    assert "| 19 states from state 1, p = 0.2" in (mdp / "mdp_report.md").read_text()
 
     probe = _browser_check(tmp_path / "report.html")
     images = dict(probe["images"])

@@ -96,15 +96,11 @@ def test_insertion_demos_labels_and_variety(insertion_demos):
 
 
 def test_dataset_info_and_push_without_network(insertion_demos, monkeypatch):
-    out = subprocess.run([str(BIN / "policy-composer"), "dataset", "info", str(insertion_demos)],
-                         capture_output=True, text=True, check=True).stdout
+    out = run_cli("dataset", "info", str(insertion_demos)).stdout
     assert ("episodes:    2" in out and "task done:   100% of episodes" in out and "head 64x64x3" in out
             and "fps: 20" in out)
     before = tree_digest(insertion_demos)
-    env = {**os.environ, "HF_HUB_OFFLINE": "1"}
-    res = subprocess.run([str(BIN / "policy-composer"), "dataset", "push", str(insertion_demos),
-                          "--repo-id", "me/gears"],
-                         capture_output=True, text=True, env=env, timeout=120)
+    res = run_cli("dataset", "push", str(insertion_demos), "--repo-id", "me/gears")
     assert res.returncode == 2 and "unreachable" in res.stderr and "intact" in res.stderr
     assert tree_digest(insertion_demos) == before
     with pytest.raises(ValueError, match="USER/NAME"):
@@ -130,8 +126,7 @@ def test_the_dataset_card_says_what_the_dataset_holds(insertion_demos, tmp_path)
     from importlib.metadata import version
 
     out = tmp_path / "README.md"
-    res = subprocess.run([str(BIN / "policy-composer"), "dataset", "card", str(insertion_demos), "--repo-id",
-                          "me/gears", "--out", str(out)], capture_output=True, text=True, timeout=120)
+    res = run_cli("dataset", "card", str(insertion_demos), "--repo-id", "me/gears", "--out", str(out))
     assert res.returncode == 0, res.stderr
     card = out.read_text()
     for expected in ("This dataset was created using [LeRobot]", "- LeRobot", "- gear-assembly",
@@ -151,8 +146,7 @@ def test_dataset_info_refuses_a_dataset_with_a_video_missing(insertion_demos, tm
     shutil.copytree(insertion_demos, broken)
     video = sorted((broken / "videos" / "observation.images.head").rglob("*.mp4"))[0]
     video.unlink()
-    res = subprocess.run([str(BIN / "policy-composer"), "dataset", "info", str(broken)], capture_output=True,
-                         text=True, timeout=120)
+    res = run_cli("dataset", "info", str(broken))
     assert res.returncode == 2, res.stdout + res.stderr
     assert f"missing 1 video file(s) its episodes point to ({video.relative_to(broken)})" in res.stderr
     assert "Traceback" not in res.stderr
@@ -372,8 +366,7 @@ def test_a_dataset_edited_by_lerobot_says_what_it_lost(insertion_demos, tmp_path
     edited = tmp_path / "edited"
     delete_episodes(open_dataset(insertion_demos), [0], output_dir=edited)
     assert open_dataset(edited).num_episodes == 1
-    res = subprocess.run([str(BIN / "policy-composer"), "dataset", "info", str(edited)], capture_output=True,
-                         text=True, timeout=120)
+    res = run_cli("dataset", "info", str(edited))
     assert res.returncode == 0, res.stderr
     assert "provenance:  meta/policy_composer.json is missing: this GearAssembly-v1 recording was edited" in res.stdout
     description = card_fields(edited)["dataset_description"]
@@ -403,8 +396,7 @@ def test_the_card_of_a_dataset_recorded_elsewhere_describes_only_what_it_holds(t
     ds.finalize()
     assert "not recorded by policy-composer" in summarize(root)["provenance"]
     out = tmp_path / "README.md"
-    res = subprocess.run([str(BIN / "policy-composer"), "dataset", "card", str(root), "--out", str(out)],
-                         capture_output=True, text=True, timeout=120)
+    res = run_cli("dataset", "card", str(root), "--out", str(out))
     assert res.returncode == 0, res.stderr
     card = out.read_text()
     for absent in ("GearAssembly", "both arms", "policy-composer 0", "gear-assembly", "`stage`"):
