@@ -75,3 +75,30 @@ def test_one_registration_reaches_every_reader(wiggle, state_env, tmp_path):
     assert build_parser().parse_args(["evaluate", "controllers"]).kinds == "MP,DMP,CNN,Wiggle"
     with pytest.raises(LibraryError, match="registered twice"):
         register_kind("wiggle", "Wiggle", ("pick",), module=__name__)(WiggleConfig)
+
+
+def test_the_documented_kind_runs_as_written(state_env, tmp_path, monkeypatch):
+    """docs/adding-a-controller.md's wiggle kind, its two files copied out of the page: registered on its config, its
+    controller module found beside it by convention, built with the config's defaults."""
+    import importlib
+    import re
+    from pathlib import Path
+
+    page = (Path(__file__).resolve().parents[1] / "docs" / "adding-a-controller.md").read_text()
+    package = tmp_path / "wiggle_kind"
+    package.mkdir()
+    (package / "__init__.py").write_text("")
+    for name in ("configuration_wiggle", "controller"):
+        code = re.search(rf"```python\n# policies/wiggle/{name}\.py\n(.*?)```", page, re.S).group(1)
+        (package / f"{name}.py").write_text(code)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    saved = dict(registry._KINDS)
+    try:
+        config = importlib.import_module("wiggle_kind.configuration_wiggle").WiggleConfig
+        kind = get_kind("wiggle")
+        assert kind.config is config and not kind.trained and kind.controller_names == ("wiggle_insert",)
+        controller = build_library(state_env, ["wiggle_insert"], LibrarySources())["wiggle_insert"]
+        assert type(controller).__module__ == "wiggle_kind.controller" and controller.amplitude == config.amplitude
+    finally:
+        registry._KINDS.clear()
+        registry._KINDS.update(saved)
