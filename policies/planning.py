@@ -177,7 +177,7 @@ def plan_rrt_connect(collision: SceneCollisionModel, q_start: np.ndarray, q_goal
     return np.array([[path.getState(k)[i] for i in range(7)] for k in range(path.getStateCount())])
 
 
-def time_parameterize(path: np.ndarray, dt: float, speed: float = 0.4, accel_steps: int = 8) -> np.ndarray:
+def time_parameterize(path: np.ndarray, dt: float, speed: float = MPConfig.speed, accel_steps: int = 8) -> np.ndarray:
     """Joint targets every `dt` along a piecewise-linear path: at most `speed` x the velocity limits, with
     linear ramps up and down over `accel_steps` control steps. Returns (T, 7), ending exactly at path[-1]."""
     seg = np.diff(path, axis=0)
