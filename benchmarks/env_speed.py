@@ -1,5 +1,6 @@
 """Env steps/s of GearAssembly-v1 (state only; the one camera composing renders, the world model's; the three a
-recording renders) against ManiSkill's PickCube-v1 with its camera.
+recording renders) against ManiSkill's PickCube-v1 with its camera; and a controller's steps (a step and its own
+`evaluate`) with the task's grasp check against ManiSkill's `is_grasping`, which reads the contacts at every call.
 
 Run: python benchmarks/env_speed.py [--steps 200]
 All figures come from the same process, so ratios hold on a noisy machine.
@@ -55,6 +56,22 @@ def main() -> None:
         sps = steps_per_second(env, lambda hold=hold: hold, args.steps)
         print(f"GearAssembly-v1, {label}: {sps:.1f} steps/s ({sps / ref_sps:.2f}x PickCube-v1)")
         env.close()
+
+    env = gym.make("GearAssembly-v1", obs_mode="state_dict")
+    u = env.unwrapped
+    env.reset(seed=0)
+    hold = u.flat_to_dict_action(u.hold_action())
+    rates = {}
+    for label in ("ManiSkill's is_grasping", "the task's grasp check"):
+        if label.startswith("ManiSkill"):
+            u._left_grasping = lambda: u.left_arm.is_grasping(u.gear)  # the reference, on this instance only
+        else:
+            del u._left_grasping
+        rates[label] = steps_per_second(env, lambda: (u.evaluate(), hold)[1], args.steps)
+    env.close()
+    (ref_label, ref_rate), (label, rate) = rates.items()
+    print(f"a controller's steps (state only, step + evaluate): {label} {rate:.1f} steps/s, {ref_label} "
+          f"{ref_rate:.1f} steps/s ({rate / ref_rate:.2f}x)")
 
 
 if __name__ == "__main__":

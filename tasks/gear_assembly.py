@@ -29,7 +29,7 @@ from mani_skill.agents.multi_agent import MultiAgent
 from mani_skill.envs.sapien_env import BaseEnv
 from mani_skill.envs.utils.randomization.pose import random_quaternions
 from mani_skill.sensors.camera import CameraConfig
-from mani_skill.utils import sapien_utils
+from mani_skill.utils import common, sapien_utils
 from mani_skill.utils.registration import make, make_vec, register
 from mani_skill.utils.scene_builder.table import TableSceneBuilder
 from mani_skill.utils.structs.pose import Pose
@@ -129,6 +129,7 @@ class GearAssemblyEnv(BaseEnv):
         self.knocked_out = False
         self.start = "table"
         self.grasp_offset = 0.0  # at a pre-insertion start: where the gear sits along the fingers (m)
+        self._physics_steps, self._finger_forces_at = 0, None
         # Without CUDA, render on the CPU (lavapipe) directly instead of warning and falling back.
         kwargs.setdefault("render_backend", "gpu" if torch.cuda.is_available() else "cpu")
         # Rebuild the scene at every reset (about 0.4 s on the CPU): PhysX keeps contact state across set_pose, so
@@ -292,6 +293,9 @@ class GearAssemblyEnv(BaseEnv):
     def _attach_peg_module(self):
         self.peg_module.set_pose(self.agent.agents[1].tcp.pose * self._tcp_to_module)
 
+    def _after_simulation_step(self):
+        self._physics_steps += 1  # the contacts PhysX reports change only here
+
     def _after_control_step(self):
         # The peg module is rigidly attached to the right hand: follow it if the right arm moves.
         self._attach_peg_module()
@@ -319,6 +323,33 @@ class GearAssemblyEnv(BaseEnv):
         rel = self.peg_module.pose.inv() * self.gear.pose
         axis_cos = rel.to_transformation_matrix()[..., 2, 2]
         return rel.p, axis_cos
+
+    def _left_grasping(self) -> torch.Tensor:
+        """ManiSkill's `Panda.is_grasping(gear)` (0.5 N, 85 degrees), with the fingers' contact forces read once per
+        physics step on the CPU: `evaluate` runs at every control step and again for each controller's checks, and
+        each of ManiSkill's force queries walks all the scene's contacts in Python (a third of an episode's time)."""
+        arm = self.left_arm
+        if self.gpu_sim_enabled:
+            return arm.is_grasping(self.gear)
+        l_force, r_force = self._finger_forces()
+        l_open = arm.finger1_link.pose.to_transformation_matrix()[..., :3, 1]  # the direction that opens each finger
+        r_open = -arm.finger2_link.pose.to_transformation_matrix()[..., :3, 1]
+        return _pushes(l_force, l_open) & _pushes(r_force, r_open)
+
+    def _finger_forces(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """ManiSkill's `scene.get_pairwise_contact_forces(finger, gear)` for both left fingers, from one pass over the
+        last physics step's contacts, kept until the next step."""
+        cached = self._finger_forces_at
+        if cached is None or cached[0] is not self.scene or cached[1] != self._physics_steps:
+            arm = self.left_arm
+            fingers = [link._bodies[0].entity for link in (arm.finger1_link, arm.finger2_link)]
+            by_finger = sapien_utils.get_multiple_pairwise_contacts(self.scene.px.get_contacts(),
+                                                                    self.gear._bodies[0].entity, fingers)
+            forces = tuple(common.to_tensor(sapien_utils.compute_total_impulse(  # signed as seen by the finger
+                [(contact, not gear_first) for contact, gear_first in by_finger[f]]))[None, :] / self.scene.px.timestep
+                for f in fingers)
+            cached = self._finger_forces_at = (self.scene, self._physics_steps, forces)
+        return cached[2]
 
     def joint_state(self) -> torch.Tensor:
         """observation.state: [left 7 joints, left gripper width, right 7 joints, right gripper width]."""
@@ -356,7 +387,7 @@ class GearAssemblyEnv(BaseEnv):
         # Contact forces are those of the last physics step (stale right after a reset): also ask for the
         # gear to be at the fingers.
         near = torch.linalg.norm(self.gear.pose.p - self.left_arm.tcp.pose.p, dim=-1) < GRASP_DISTANCE
-        grasped = self.left_arm.is_grasping(self.gear) & near
+        grasped = self._left_grasping() & near
         lifted = grasped & (self.gear.pose.p[:, 2] > LIFT_HEIGHT)
         aligned = axis_cos > np.cos(np.deg2rad(ALIGN_TOL_DEG))
         at_peg = (grasped & (radial < PRE_INSERT_RADIUS) & (height >= peg_h - 0.003)
@@ -388,6 +419,12 @@ class GearAssemblyEnv(BaseEnv):
 
     def compute_normalized_dense_reward(self, obs: Any, action: torch.Tensor, info: dict):
         return self.compute_dense_reward(obs, action, info) / 6.0
+
+
+def _pushes(force: torch.Tensor, opening: torch.Tensor, min_force: float = 0.5, max_angle: float = 85) -> torch.Tensor:
+    """A finger presses on the gear: at least `min_force` N, within `max_angle` degrees of its opening direction."""
+    angle = torch.rad2deg(common.compute_angle_between(opening, force))
+    return (torch.linalg.norm(force, axis=1) >= min_force) & (angle <= max_angle)
 
 
 # ManiSkill's registry (its `make` reads it); gymnasium's entry, which points here, is made by `policy_composer.tasks`.

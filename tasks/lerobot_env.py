@@ -31,7 +31,7 @@ class GearAssemblyLeRobotEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
 
     def __init__(self, task: str = "insert", resolution: int = 128, cameras: tuple[str, ...] = CAMERA_NAMES,
-                 clearance_mm: float = 2.0, render_mode: str = "rgb_array"):
+                 clearance_mm: float = 2.0, render_mode: str = "rgb_array", max_episode_steps: int | None = None):
         if task not in TASKS:
             raise ValueError(f"GearAssembly has no task {task!r}: choose one of {', '.join(TASKS)} (--env.task)")
         unknown = set(cameras) - set(CAMERA_NAMES)
@@ -39,6 +39,10 @@ class GearAssemblyLeRobotEnv(gym.Env):
             raise ValueError(f"GearAssembly's cameras are {', '.join(CAMERA_NAMES)}, not {sorted(unknown) or '[]'}")
         self.task, self.cameras, self.render_mode = task, tuple(cameras), render_mode
         self._start, self._max_episode_steps, self.task_description = TASKS[task]
+        if max_episode_steps is not None:
+            if max_episode_steps < 1:
+                raise ValueError(f"an episode needs at least one step, not {max_episode_steps} (--env.episode_length)")
+            self._max_episode_steps = max_episode_steps
         self.env = make_env("rgb", resolution, clearance_mm, self.cameras)
         self.metadata = {**self.metadata, "render_fps": int(self.env.unwrapped.control_freq)}
         image = spaces.Box(0, 255, (resolution, resolution, 3), np.uint8)

@@ -129,13 +129,13 @@ def test_a_policy_pushing_against_the_table_keeps_its_command_near_the_hand(rgb_
     from policy_composer.policies.cnn.controller import MAX_LEAD
 
     class PressesDown:  # the policy's interface: config and act(image, state) -> (1, 4)
-        config = CNNPolicyConfig(subtask="pick", image_size=32)
+        config = CNNPolicyConfig(subtask="pick", image_size=32, max_steps=100)  # its controller's step limit
 
         def act(self, image, state):
             return torch.tensor([[0.0, 0.0, 0.01, 1.0]])  # 10 mm a step along the hand's z axis (down), open
 
     obs = start_state(rgb_env, 3, "pick")
-    controller = CNNController(rgb_env, PressesDown(), SUBTASKS["pick"], max_steps=100)
+    controller = CNNController(rgb_env, PressesDown(), SUBTASKS["pick"])
     run_activation(rgb_env, controller, obs, seed=3)
     assert controller.outcome is Outcome.FAILED and controller._steps == 100, controller.reason
     assert np.linalg.norm(controller._command - np0(controller.ik.arm.tcp.pose.p)) <= MAX_LEAD + 1e-9

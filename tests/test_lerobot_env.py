@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import av
 import numpy as np
 import pytest
 from conftest import run_cli
@@ -52,17 +53,20 @@ def test_bad_task_or_camera_is_named():
         GearAssemblyLeRobotEnv("stack")
     with pytest.raises(ValueError, match="cameras are head, left_forearm, right_forearm, not \\['wrist'\\]"):
         GearAssemblyLeRobotEnv("insert", cameras=("wrist",))
+    with pytest.raises(ValueError, match="at least one step, not 0 \\(--env.episode_length\\)"):
+        GearAssemblyLeRobotEnv("insert", max_episode_steps=0)
 
 
 def test_lerobot_eval_runs_a_checkpoint_trained_on_our_dataset(act_checkpoint, tmp_path):
     """`lerobot-eval --env.type=gear_assembly` finds the env through LeRobot's plugin discovery, runs two episodes
-    side by side (--eval.batch_size=2) and writes its results and videos."""
+    side by side (--eval.batch_size=2), cut off at --env.episode_length, and writes its results and videos."""
     checkpoint, trained = act_checkpoint
     assert trained.returncode == 0, (trained.stdout + trained.stderr)[-2000:]
     out = tmp_path / "eval"
     cmd = [str(Path(sys.executable).parent / "lerobot-eval"), f"--policy.path={checkpoint}", "--policy.device=cpu",
-           "--env.type=gear_assembly", "--env.task=insert", "--env.resolution=64", "--eval.n_episodes=2",
-           "--eval.batch_size=2", "--eval.use_async_envs=false", f"--output_dir={out}", "--seed=500"]
+           "--env.type=gear_assembly", "--env.task=insert", "--env.resolution=64", "--env.episode_length=25",
+           "--eval.n_episodes=2", "--eval.batch_size=2", "--eval.use_async_envs=false",
+           f"--output_dir={out}", "--seed=500"]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=900,
                          env={**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"})
     assert res.returncode == 0, (res.stdout + res.stderr)[-3000:]
@@ -71,7 +75,9 @@ def test_lerobot_eval_runs_a_checkpoint_trained_on_our_dataset(act_checkpoint, t
     metrics = task["metrics"]
     assert task["task_group"] == "gear_assembly" and info["overall"]["n_episodes"] == 2, info["overall"]
     assert len(metrics["successes"]) == 2 and all(isinstance(s, bool) for s in metrics["successes"]), metrics
-    assert np.isfinite(metrics["sum_rewards"]).all() and len(list(out.rglob("*.mp4"))) == 2
+    videos = sorted(out.rglob("*.mp4"))
+    assert np.isfinite(metrics["sum_rewards"]).all() and len(videos) == 2
+    assert all(av.open(str(v)).streams.video[0].frames <= 26 for v in videos)  # cut off at 25 steps (and the start)
 
 
 def test_lerobot_eval_says_when_the_policy_was_trained_on_other_images(act_checkpoint, monkeypatch, caplog):

@@ -1,8 +1,13 @@
-"""The gear seats on the peg when released aligned, and not when released off by more than the clearance."""
+"""The gear seats on the peg when released aligned, and not when released off by more than the clearance; the grasp
+flag is ManiSkill's."""
 
 import gymnasium as gym
 import pytest
+import torch
 from mani_skill.utils.structs.pose import Pose
+
+from policy_composer.tasks.gear_expert import GearAssemblyExpert
+from policy_composer.tasks.rollout import run_episode
 
 
 def release_above_peg(env, seed: int, radial_offset: float, steps: int = 40) -> dict:
@@ -36,3 +41,20 @@ def test_clearance_is_configurable(clearance):
     assert bool(release_above_peg(env, 0, 0.0)["success"][0])
     assert not bool(release_above_peg(env, 0, clearance + 0.002)["success"][0])
     env.close()
+
+
+def test_the_grasp_flag_is_maniskills_with_the_contacts_read_once_per_physics_step(state_env):
+    """At every step of an expert episode (before, during and after the grasp), the task's grasp check and its
+    finger forces equal ManiSkill's `is_grasping` and `get_pairwise_contact_forces` bit for bit."""
+    u = state_env.unwrapped
+    flags = []
+
+    def check(*_):
+        ours = u._left_grasping()
+        assert torch.equal(ours, u.left_arm.is_grasping(u.gear))
+        for link, force in zip((u.left_arm.finger1_link, u.left_arm.finger2_link), u._finger_forces()):
+            assert torch.equal(force, u.scene.get_pairwise_contact_forces(link, u.gear))
+        flags.append(bool(ours[0]))
+
+    assert run_episode(state_env, GearAssemblyExpert(state_env), 3, on_step=check).success
+    assert True in flags and False in flags

@@ -291,9 +291,9 @@ def test_composing_on_two_workers_gives_the_serial_run(world, tmp_path):
     from policy_composer.app.composition import compose_library
 
     config = ComposeConfig(horizon=3, samples=4, max_steps=150)
-    runs = {w: compose_library(world[0], LibrarySources(max_grasp_offset=0.0), config, [2, 0, 1], tmp_path / f"w{w}",
+    runs = {w: compose_library(world[0], LibrarySources(max_grasp_offset=0.0), config, [1, 0], tmp_path / f"w{w}",
                                videos=0, resolution=SIZE, progress=False, workers=w) for w in (1, 2)}
-    assert [e.seed for e in runs[2]] == [2, 0, 1]
+    assert [e.seed for e in runs[2]] == [1, 0]
     assert [e.to_dict() for e in runs[2]] == [e.to_dict() for e in runs[1]]
     assert (tmp_path / "w2" / "episodes.jsonl").read_text() == (tmp_path / "w1" / "episodes.jsonl").read_text()
 

@@ -51,6 +51,7 @@ class CNNPolicyConfig(TrainingConfig):
     epochs: int = option(200, "training epochs (paper: 200)", minimum=1)
     # Behaviour cloning's usual guard against memorising a few demonstrations.
     shift: int = option(4, "random-shift augmentation in pixels at image_size (0: none)", minimum=0)
+    max_steps: int = option(120, "control steps the controller runs before it gives up", minimum=1)
 
     @property
     def state_dim(self) -> int:

@@ -29,8 +29,8 @@ class CNNController(LearnedController):
     predicts changes of the command) and turned into the left arm's joint targets. A policy in the "hand"
     action space moves the commanded TCP, with the hand kept pointing down, by IK from the measured joints."""
 
-    def __init__(self, env, policy: CNNPolicy, subtask: Subtask = SUBTASKS["insert"], max_steps: int = 120):
-        super().__init__(env, subtask, f"cnn_{subtask.name}", max_steps)
+    def __init__(self, env, policy: CNNPolicy, subtask: Subtask = SUBTASKS["insert"], max_steps: int | None = None):
+        super().__init__(env, subtask, f"cnn_{subtask.name}", max_steps or policy.config.max_steps)
         check_camera(self.env, policy.config.camera, "the CNN policy")
         self.policy = policy
         sl = PROPRIOCEPTION[policy.config.proprioception]

@@ -44,6 +44,7 @@ class Profile:
     mixtures: int = 24  # paper: 24
     horizon: int = 10  # paper: n = 10
     samples: int = 16
+    cnn_max_steps: int = 120  # a CNN controller's step limit
     holds: str = ""  # which results this size supports
     elsewhere: str = ""  # figures at this size that other runs measured (the report links to them in the README)
 
@@ -72,10 +73,10 @@ PROFILES = {
                            "full-task demonstrations, 200 epochs, 24 mixtures, n = 10, 10 trials per Table I cell, "
                            "and 50 composed seeds."),
     "smoke": Profile("smoke", resolution=32, image_size=32, insertion_demos=1, transport_demos=1,
-                     full_task_demos=3, train_demos=2, dmp_episodes=1, rollouts=1, cnn_epochs=2, vae_epochs=2,
+                     full_task_demos=2, train_demos=1, dmp_episodes=1, rollouts=1, cnn_epochs=2, vae_epochs=2,
                      dynamics_epochs=2, goal_epochs=2,
                      table_trials=1, compose_episodes=1, knockout_episodes=1, mdp_episodes_19=20, mdp_episodes_100=2,
-                     mdp_levels=(0.0, 0.4, 0.8), mixtures=4, horizon=3, samples=4,
+                     mdp_levels=(0.0, 0.4, 0.8), mixtures=4, horizon=3, samples=4, cnn_max_steps=30,
                      holds="Every stage at the smallest size that runs, to test the pipeline: no figure here means "
                            "anything."),
 }
@@ -95,8 +96,8 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
     transport = load_recipe("gear-transport-demos")
     full_task = replace(load_recipe("gear-full-task-demos"), train_episodes=p.train_demos)
     rollouts = load_recipe("gear-controller-rollouts")
-    cnn = {s: CNNPolicyConfig(subtask=s, epochs=p.cnn_epochs, num_mixtures=p.mixtures, image_size=p.image_size)
-           for s in ("pick", "move", "insert")}
+    cnn = {s: CNNPolicyConfig(subtask=s, epochs=p.cnn_epochs, num_mixtures=p.mixtures, image_size=p.image_size,
+                              max_steps=p.cnn_max_steps) for s in ("pick", "move", "insert")}
     vae = VAEConfig(epochs=p.vae_epochs, image_size=p.image_size)
     dynamics = DynamicsConfig(epochs=p.dynamics_epochs)
     goal = GoalScoreConfig(epochs=p.goal_epochs, num_mixtures=p.mixtures, image_size=p.image_size)

@@ -27,6 +27,7 @@ class GearAssemblyEnv(EnvConfig):
     resolution: int = 128  # camera images, pixels square (the datasets' default)
     cameras: list[str] = field(default_factory=lambda: list(CAMERA_NAMES))
     clearance_mm: float = 2.0
+    episode_length: int | None = None  # control steps before an episode is cut off (None: the task's, 200 or 400)
 
     def __post_init__(self):
         self.features = {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(len(ACTION_NAMES),)),
@@ -40,7 +41,7 @@ class GearAssemblyEnv(EnvConfig):
     @property
     def gym_kwargs(self) -> dict:
         return {"task": self.task, "resolution": self.resolution, "cameras": tuple(self.cameras),
-                "clearance_mm": self.clearance_mm}
+                "clearance_mm": self.clearance_mm, "max_episode_steps": self.episode_length}
 
     def policy_mismatches(self, policy_path: str | Path) -> list[str]:
         """What a checkpoint's config expects of the cameras that this env does not give: lerobot-eval hands the

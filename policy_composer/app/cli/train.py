@@ -77,7 +77,8 @@ def add_commands(sub) -> None:
     add_config_options(tr_policy, CNNPolicyConfig, {
         "subtask": "subtask", "camera": "camera", "backbone": "backbone", "epochs": "epochs",
         "image_size": "image-size", "num_mixtures": "mixtures", "action_space": "action-space",
-        "proprioception": "proprioception", "shift": "shift", "batch_size": "batch-size", "seed": "seed"})
+        "proprioception": "proprioception", "shift": "shift", "batch_size": "batch-size", "seed": "seed",
+        "max_steps": "max-steps"})
     tr_policy.add_argument("--threads", type=at_least(1), default=2)
     tr_policy.add_argument("--out", help=f"checkpoint folder (default: {MODELS / 'cnn'}/SUBTASK, where the "
                            "library's CNN model looks)")
