@@ -87,7 +87,7 @@ python_packages() {
   # PYTHONDONTWRITEBYTECODE keeps Python from caching what it compiles at import.
   log "compiling the installed packages' bytecode"
   local site; site=$("$VENV/bin/python" -c 'import sysconfig; print(sysconfig.get_path("purelib"))')
-  "$VENV/bin/python" -m compileall -q -j 0 "$site" >/dev/null
+  "$VENV/bin/python" -W ignore -m compileall -q -j 0 "$site" >/dev/null
   echo "$want" > "$stamp"
 }
 
