@@ -17,6 +17,7 @@ from pathlib import Path
 
 from policy_composer.app.pipeline import Stage, StageRecord, run_stages
 from policy_composer.data.lock import one_writer
+from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 from policy_composer.tasks.spec import CAMERA_NAMES as CAMERAS
 
 
@@ -44,7 +45,7 @@ class Profile:
     mixtures: int = 24  # paper: 24
     horizon: int = 10  # paper: n = 10
     samples: int = 16
-    cnn_max_steps: int = 120  # a CNN controller's step limit
+    cnn_max_steps: int = CNNPolicyConfig.max_steps  # a CNN controller's step limit
     holds: str = ""  # which results this size supports
     elsewhere: str = ""  # figures at this size that other runs measured (the report links to them in the README)
 
@@ -86,7 +87,6 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
     """The main job's stages at the sizes of profile `p`; the episode loops run on `workers` processes (not in a
     stage's key: the results are the same for any number)."""
     from policy_composer.data.recipes import load_recipe
-    from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
     from policy_composer.policies.library import LIBRARY_REVISION, all_names
     from policy_composer.policies.registry import kinds
     from policy_composer.selector.configuration import ComposeConfig, DynamicsConfig, GoalScoreConfig, VAEConfig
