@@ -1,16 +1,28 @@
 import contextlib
 import hashlib
 import io
+import json
 import os
+import shutil
 import subprocess
+import sys
+from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
+if int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")) > 1:
+    os.environ.setdefault("OMP_NUM_THREADS", "1")  # the test workers are the parallelism: torch takes one core each
 
 import gymnasium as gym
 import pytest
+from filelock import FileLock
 
 import policy_composer.tasks  # noqa: F401  (registers GearAssembly-v1; the simulator loads at the first gym.make)
+
+
+def pytest_collection_modifyitems(items):
+    items.sort(key=lambda item: item.get_closest_marker("runs_first") is None)  # stable: the rest keep their order
 
 
 @pytest.fixture(scope="session")
@@ -21,16 +33,34 @@ def state_env():
     env.close()
 
 
-def record_dataset(tmp_path_factory, recipe: str, episodes: int, resolution: int, name: str | None = None,
-                   sources=None, **changes) -> Path:
-    """Record `episodes` of `recipe` (with `changes` to its fields) at `resolution` px into a new temporary folder."""
+def shared(tmp_path_factory, name: str, build: Callable[[Path], object]) -> Path:
+    """A folder `build` fills once per test run: the first pytest-xdist worker to ask builds it under a file lock,
+    the others wait and reuse it (pytest-xdist's documented pattern for session fixtures). Tests only read it."""
+    if "PYTEST_XDIST_WORKER" not in os.environ:
+        folder = tmp_path_factory.mktemp(name)
+        build(folder)
+        return folder
+    folder = tmp_path_factory.getbasetemp().parent / name
+    with FileLock(f"{folder}.lock"):
+        done = folder / ".built"
+        if not done.exists():
+            shutil.rmtree(folder, ignore_errors=True)
+            folder.mkdir()
+            build(folder)
+            done.touch()
+    return folder
+
+
+def record_dataset(folder: Path, recipe: str, episodes: int, resolution: int, name: str | None = None, sources=None,
+                   **changes) -> Path:
+    """Record `episodes` of `recipe` (with `changes` to its fields) at `resolution` px into `folder`/`name`."""
     from dataclasses import replace
 
     from policy_composer.app.record import record_recipe
     from policy_composer.data.recipes import load_recipe
     from policy_composer.tasks.spec import EnvSettings
 
-    root = tmp_path_factory.mktemp("ds") / (name or recipe)
+    root = folder / (name or recipe)
     record_recipe(replace(load_recipe(recipe), **changes), root, episodes=episodes,
                   settings=EnvSettings(resolution=resolution), progress=False, sources=sources)
     return root
@@ -39,19 +69,22 @@ def record_dataset(tmp_path_factory, recipe: str, episodes: int, resolution: int
 @pytest.fixture(scope="session")
 def insertion_demos(tmp_path_factory):
     """Two insertion demonstrations at 64x64, recorded once for every test that needs a real dataset."""
-    return record_dataset(tmp_path_factory, "gear-insertion-demos", episodes=2, resolution=64)
+    record = partial(record_dataset, recipe="gear-insertion-demos", episodes=2, resolution=64)
+    return shared(tmp_path_factory, "insertion", record) / "gear-insertion-demos"
 
 
 @pytest.fixture(scope="session")
 def transport_demos(tmp_path_factory):
     """Two pick-up and carry demonstrations at 32x32: the CNN pick-up and move policies' data."""
-    return record_dataset(tmp_path_factory, "gear-transport-demos", episodes=2, resolution=32)
+    record = partial(record_dataset, recipe="gear-transport-demos", episodes=2, resolution=32)
+    return shared(tmp_path_factory, "transport", record) / "gear-transport-demos"
 
 
 @pytest.fixture(scope="session")
 def full_task_demos(tmp_path_factory):
     """Three full-task demonstrations at 32x32, the first two for training, the third held out."""
-    return record_dataset(tmp_path_factory, "gear-full-task-demos", episodes=3, resolution=32, train_episodes=2)
+    record = partial(record_dataset, recipe="gear-full-task-demos", episodes=3, resolution=32, train_episodes=2)
+    return shared(tmp_path_factory, "full-task", record) / "gear-full-task-demos"
 
 
 @pytest.fixture(scope="session")
@@ -59,37 +92,45 @@ def controller_rollouts(tmp_path_factory):
     """One rollout each of mp_pick and mp_insert at 32x32 (head and left forearm cameras): the dynamics models' data."""
     from policy_composer.policies.library import LibrarySources
 
-    return record_dataset(tmp_path_factory, "gear-controller-rollouts", episodes=1, resolution=32, name="rollouts",
-                          sources=LibrarySources(max_grasp_offset=0.0), controllers=("mp_pick", "mp_insert"))
+    record = partial(record_dataset, recipe="gear-controller-rollouts", episodes=1, resolution=32, name="rollouts",
+                     sources=LibrarySources(max_grasp_offset=0.0), controllers=("mp_pick", "mp_insert"))
+    return shared(tmp_path_factory, "rollouts", record) / "rollouts"
 
 
-def lerobot_train(insertion_demos, out: Path, policy: str, *args: str):
-    """lerobot-train's `policy`, two steps on the insertion demos: (the pretrained_model folder, the trainer's log)."""
-    import sys
-
+def lerobot_train(insertion_demos, out: Path, policy: str, args: tuple[str, ...] = ()):
+    """lerobot-train's `policy`, two steps on the insertion demos into `out`/run; its log kept in `out`/train.json."""
     cmd = [str(Path(sys.executable).parent / "lerobot-train"), f"--dataset.repo_id=local/{insertion_demos.name}",
            f"--dataset.root={insertion_demos}", f"--policy.type={policy}", "--policy.pretrained_backbone_weights=null",
            "--policy.push_to_hub=false", "--policy.device=cpu", "--steps=2", "--batch_size=2", "--num_workers=0",
-           f"--output_dir={out}", "--wandb.enable=false", "--log_freq=1", "--save_freq=2", *args]
+           f"--output_dir={out / 'run'}", "--wandb.enable=false", "--log_freq=1", "--save_freq=2", *args]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=600,
                          env={**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"})
-    return out / "checkpoints" / "last" / "pretrained_model", res
+    (out / "train.json").write_text(json.dumps({"returncode": res.returncode, "stdout": res.stdout,
+                                                "stderr": res.stderr}))
+
+
+def trained(out: Path) -> tuple[Path, subprocess.CompletedProcess]:
+    """What `lerobot_train` left in `out`: (the pretrained_model folder, the trainer's exit code and log)."""
+    log = json.loads((out / "train.json").read_text())
+    return (out / "run" / "checkpoints" / "last" / "pretrained_model",
+            subprocess.CompletedProcess(["lerobot-train"], log["returncode"], log["stdout"], log["stderr"]))
 
 
 @pytest.fixture(scope="session")
 def act_checkpoint(insertion_demos, tmp_path_factory):
-    return lerobot_train(insertion_demos, tmp_path_factory.mktemp("act") / "run", "act")
+    return trained(shared(tmp_path_factory, "act", partial(lerobot_train, insertion_demos, policy="act")))
 
 
 @pytest.fixture(scope="session")
 def diffusion_checkpoint(insertion_demos, tmp_path_factory):
     """Diffusion Policy at docs/lerobot-policies.md's settings, shrunk: two observation steps in, chunks of 8 actions
     out."""
-    return lerobot_train(insertion_demos, tmp_path_factory.mktemp("diffusion") / "run", "diffusion",
-                         "--policy.use_group_norm=true", "--policy.use_separate_rgb_encoder_per_camera=false",
-                         "--policy.crop_shape=[56,56]", "--policy.n_obs_steps=2", "--policy.horizon=16",
-                         "--policy.n_action_steps=8", "--policy.drop_n_last_frames=7", "--policy.down_dims=[16,32]",
-                         "--policy.noise_scheduler_type=DDIM", "--policy.num_inference_steps=2")
+    train = partial(lerobot_train, insertion_demos, policy="diffusion", args=(
+        "--policy.use_group_norm=true", "--policy.use_separate_rgb_encoder_per_camera=false",
+        "--policy.crop_shape=[56,56]", "--policy.n_obs_steps=2", "--policy.horizon=16", "--policy.n_action_steps=8",
+        "--policy.drop_n_last_frames=7", "--policy.down_dims=[16,32]", "--policy.noise_scheduler_type=DDIM",
+        "--policy.num_inference_steps=2"))
+    return trained(shared(tmp_path_factory, "diffusion", train))
 
 
 def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:

@@ -18,6 +18,7 @@ from pathlib import Path
 from policy_composer.app.pipeline import Stage, StageRecord, run_stages
 from policy_composer.data.lock import one_writer
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
+from policy_composer.selector.configuration import ComposeConfig
 from policy_composer.tasks.spec import CAMERA_NAMES as CAMERAS
 
 
@@ -46,6 +47,7 @@ class Profile:
     horizon: int = 10  # paper: n = 10
     samples: int = 16
     cnn_max_steps: int = CNNPolicyConfig.max_steps  # a CNN controller's step limit
+    compose_max_steps: int = ComposeConfig.max_steps  # control steps of a composed episode
     holds: str = ""  # which results this size supports
     elsewhere: str = ""  # figures at this size that other runs measured (the report links to them in the README)
 
@@ -78,6 +80,7 @@ PROFILES = {
                      dynamics_epochs=2, goal_epochs=2,
                      table_trials=1, compose_episodes=1, knockout_episodes=1, mdp_episodes_19=20, mdp_episodes_100=2,
                      mdp_levels=(0.0, 0.4, 0.8), mixtures=4, horizon=3, samples=4, cnn_max_steps=30,
+                     compose_max_steps=250,
                      holds="Every stage at the smallest size that runs, to test the pipeline: no figure here means "
                            "anything."),
 }
@@ -89,7 +92,7 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
     from policy_composer.data.recipes import load_recipe
     from policy_composer.policies.library import LIBRARY_REVISION, all_names
     from policy_composer.policies.registry import kinds
-    from policy_composer.selector.configuration import ComposeConfig, DynamicsConfig, GoalScoreConfig, VAEConfig
+    from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
     from policy_composer.tasks.gear_assembly import TASK_REVISION
 
     insertion = load_recipe("gear-insertion-demos")
@@ -101,7 +104,7 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
     vae = VAEConfig(epochs=p.vae_epochs, image_size=p.image_size)
     dynamics = DynamicsConfig(epochs=p.dynamics_epochs)
     goal = GoalScoreConfig(epochs=p.goal_epochs, num_mixtures=p.mixtures, image_size=p.image_size)
-    compose = ComposeConfig(horizon=p.horizon, samples=p.samples)
+    compose = ComposeConfig(horizon=p.horizon, samples=p.samples, max_steps=p.compose_max_steps)
     env = {"resolution": p.resolution, "clearance_mm": 2.0, "task_revision": TASK_REVISION}
     # In the keys of the stages that run the controllers: a changed or added controller re-runs them.
     library = {"library_revision": LIBRARY_REVISION, "controllers": all_names()}
