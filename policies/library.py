@@ -45,6 +45,19 @@ class LibrarySources:
     models: dict[str, str] = field(default_factory=dict)  # kind name -> model path (default: MODELS/KIND)
     lerobot: tuple[LeRobotSource, ...] = field(default_factory=tuple)
     max_grasp_offset: float = 0.012  # the pick-up's perception error along the fingers (m)
+    insertion: str = "feel"  # how the planned insertions go down the peg: a key of subtasks.INSERTIONS
+
+    def __post_init__(self):
+        from policy_composer.policies.subtasks import INSERTIONS
+
+        if self.insertion not in INSERTIONS:
+            raise LibraryError(f"no insertion {self.insertion!r}: choose one of {', '.join(INSERTIONS)}")
+
+    def subtask(self, name: str):
+        """The subtask `name` as the library's controllers serve it (the insertion as `insertion` says)."""
+        from policy_composer.policies.subtasks import INSERTIONS, SUBTASKS
+
+        return INSERTIONS[self.insertion] if name == "insert" else SUBTASKS[name]
 
     def model_path(self, kind: str) -> str | None:
         """Where the kind's trained model is (None: it has none)."""
@@ -98,8 +111,9 @@ def cameras_needed(names, sources: LibrarySources) -> tuple[str, ...]:
 
 
 def model_ids(names, sources: LibrarySources) -> dict[str, str]:
-    """The trained model each named controller runs, by `weights_id` (controllers without one are left out):
-    recorded with its rollouts, so that a dynamics model is never paired with another model's controller."""
+    """The trained model each named controller runs, by `weights_id`, and the insertion of a planned one that does
+    not feel for the hole (controllers with neither are left out): recorded with its rollouts, so that a dynamics
+    model is never paired with another controller."""
     from policy_composer.learning.checkpoint import weights_id
 
     lerobot = {s.controller_name: s.path for s in sources.lerobot}
@@ -112,13 +126,13 @@ def model_ids(names, sources: LibrarySources) -> dict[str, str]:
             path = own if own.is_dir() else path
         if path is not None and Path(path).is_dir():  # a missing model: building the controller says so
             ids[name] = weights_id(path)
+        if kind is not None and kind.planned and name == f"{kind.name}_insert" and sources.insertion != "feel":
+            ids[name] = f"{ids.get(name, kind.name)}, {sources.insertion} insertion"  # it behaves otherwise
     return ids
 
 
 def build_library(env, names=None, sources: LibrarySources | None = None) -> dict[str, Controller]:
     """The named controllers (default: every one of `all_names(sources)`), ready to start in `env`."""
-    from policy_composer.policies.subtasks import SUBTASKS
-
     sources = sources or LibrarySources()
     lerobot = {s.controller_name: s for s in sources.lerobot}
     names = tuple(names) if names is not None else all_names(sources)
@@ -128,11 +142,11 @@ def build_library(env, names=None, sources: LibrarySources | None = None) -> dic
             from policy_composer.policies.lerobot_policy.controller import LeRobotPolicyController
 
             src = lerobot[name]
-            library[name] = LeRobotPolicyController(env, src.path, SUBTASKS[src.subtask], name=name)
+            library[name] = LeRobotPolicyController(env, src.path, sources.subtask(src.subtask), name=name)
             continue
         kind = kind_of(name)
         if kind is None:
             raise LibraryError(f"no controller named {name!r}; the library has {', '.join(all_names(sources))}")
-        subtask = SUBTASKS[name.removeprefix(f"{kind.name}_")]
+        subtask = sources.subtask(name.removeprefix(f"{kind.name}_"))
         library[name] = kind.function("build")(env, subtask, models[kind], kind.config(), sources.max_grasp_offset)
     return library

@@ -35,6 +35,7 @@ class ControllerKind:
     subtasks: tuple[str, ...]  # the subtasks it has a controller for
     config: type  # its configuration class; `build` gets an instance with the defaults
     trained: bool = False  # its controllers run a trained model, which `load(path)` reads
+    planned: bool = False  # its insertion goes down the peg as LibrarySources.insertion says (MP, DMP)
     module: str = ""  # where build, load and cameras are; default: `controller` beside the configuration
 
     @property
@@ -51,11 +52,12 @@ _KINDS: dict[str, ControllerKind] = {}
 _loaded = False
 
 
-def register_kind(name: str, label: str, subtasks: tuple[str, ...], trained: bool = False, module: str = ""):
+def register_kind(name: str, label: str, subtasks: tuple[str, ...], trained: bool = False, planned: bool = False,
+                  module: str = ""):
     """Decorate a kind's configuration class to add the kind to the registry (once per name)."""
 
     def register(config: type) -> type:
-        kind = ControllerKind(name, label, tuple(subtasks), config, trained, module)
+        kind = ControllerKind(name, label, tuple(subtasks), config, trained, planned, module)
         if name in _KINDS and _KINDS[name] != kind:
             raise LibraryError(f"controller kind {name!r} is registered twice")
         _KINDS[name] = kind

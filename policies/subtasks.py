@@ -268,7 +268,17 @@ class Regrasp(Subtask):
         return info["gear_on_table"], "the gear is not lying flat on the table"
 
 
+class InsertStraightDown(Insert):
+    """The paper's insertion: lined up for a centred grasp and straight down, once. A gear held more than the
+    clearance off-centre rests on the peg's top and the insertion fails (paper, Table I: MP and DMP 1/10)."""
+
+    search = (0.0,)
+
+
 SUBTASKS = {s.name: s for s in (Pick(), Move(), Insert(), Regrasp())}
+# How the planned insertions (MP, DMP) go down the peg: feeling for the hole (ours), or straight down (the paper's).
+# The learned controllers close the loop on their cameras and do not search either way.
+INSERTIONS = {"feel": SUBTASKS["insert"], "straight": InsertStraightDown()}
 TASK_SEQUENCE = ("pick", "move", "insert")  # the full task, when nothing goes wrong
 
 

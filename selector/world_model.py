@@ -93,15 +93,16 @@ class GearWorldModel:
         return cls(vae, dynamics, goal_model, {n: m for n, m in models.items() if m})
 
     def check_controllers(self, models: dict[str, str]) -> None:
-        """Refuse controllers (their models by `weights_id`) other than those whose rollouts trained the dynamics
-        models: the predictions would be of another policy."""
-        for name, model in models.items():
-            made_with = self.controller_models.get(name)
-            if made_with is not None and made_with != model:
+        """Refuse controllers (their models by `weights_id`, see `library.model_ids`) other than those whose rollouts
+        trained the dynamics models: the predictions would be of another policy."""
+        for name in self.dynamics:
+            made_with, given = self.controller_models.get(name), models.get(name)
+            if made_with != given:
                 raise CheckpointError(
                     f"the {name} dynamics model was trained on rollouts of another model than the {name} given "
-                    f"(weights {made_with}, given {model}); give the model it was trained on, or record "
-                    f"{name}'s rollouts with this one and train the world model again")
+                    f"(made with {made_with or 'no model'}, given {given or 'no model'}); give "
+                    f"the model (or --insertion) it was trained on, or record {name}'s rollouts with this one and "
+                    f"train the world model again")
 
     @torch.no_grad()
     def encode(self, obs) -> torch.Tensor:

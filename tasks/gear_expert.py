@@ -44,6 +44,12 @@ class ExpertConfig:
     # behaviour-cloned policy must learn.)
     teleop: bool = False
     arrival_error: float = 0.004
+    # DART (Laskey et al. 2017): while carrying and inserting, the executed TCP target is off the expert's own by a
+    # slowly drifting offset of this standard deviation per axis (m), which the expert does not know of. The arm,
+    # and the gear with it, strays; the expert, closing the loop on the gear, corrects; and the recorded action is
+    # the expert's own command. So the demonstrations show corrections from states off the expert's path.
+    noise: float = 0.0
+    noise_steps: float = 10.0  # the offset's correlation time, control steps
 
 
 class GearAssemblyExpert:
@@ -88,8 +94,8 @@ class GearAssemblyExpert:
     # ------------------------------------------------------------------ episode
     def reset(self, seed: int | None = None) -> None:
         env, cfg = self.env, self.config
-        rng = np.random.default_rng(cfg.seed if cfg.seed is not None else seed if seed is not None
-                                    else int(env._episode_seed[0]))
+        episode_seed = cfg.seed if cfg.seed is not None else seed if seed is not None else int(env._episode_seed[0])
+        rng = np.random.default_rng(episode_seed)
         self.grasp_offset = float(rng.uniform(-cfg.grasp_offset, cfg.grasp_offset))
         self._q_seed = self._np(env.left_arm.robot.get_qpos())
         self.phase, self._timer = "approach", 0
@@ -112,6 +118,9 @@ class GearAssemblyExpert:
             self.grasp_offset, self.phase, self._gripper = env.grasp_offset, "insert", GRIPPER_CLOSED
             self._cmd_q = self._np(env.left_arm.tcp.pose.q)
         self._hold = self._np(env.hold_action())
+        self._noise_rng = np.random.default_rng([episode_seed, 1])  # its own stream: the other draws stay the same
+        self._offset = np.zeros(3)
+        self.executed = None  # the last action sent to the arm, noise included (see ExpertConfig.noise)
         if cfg.teleop:
             self._arrival = np.append(rng.uniform(-cfg.arrival_error, cfg.arrival_error, 2), rng.uniform(0.0, 0.01))
             self._gain, self._speed = rng.uniform(0.25, 0.6), rng.uniform(0.6, 1.2)
@@ -176,7 +185,22 @@ class GearAssemblyExpert:
         else:
             action[:7] = self._q_seed[:7]
         action[7] = self._gripper
+        self.executed = torch.as_tensor(self._perturbed(action, target), dtype=torch.float32)
         return torch.as_tensor(action, dtype=torch.float32)
+
+    def _perturbed(self, action: np.ndarray, target: sapien.Pose | None) -> np.ndarray:
+        """`action` with the TCP target moved by the drifting offset (ExpertConfig.noise): it drifts while carrying
+        and inserting and is held after, so letting go does not jerk the arm."""
+        cfg = self.config
+        if cfg.noise <= 0.0:
+            return action
+        if self.phase in ("carry", "insert"):
+            a = float(np.exp(-1.0 / cfg.noise_steps))
+            self._offset = a * self._offset + np.sqrt(1.0 - a * a) * cfg.noise * self._noise_rng.standard_normal(3)
+        if target is None or not self._offset.any():
+            return action
+        q, ok = self._ik.solve(sapien.Pose(target.p + self._offset, target.q), self._q_seed)
+        return np.concatenate([q[:7], action[7:]]) if ok else action
 
     @property
     def done(self) -> bool:

@@ -17,6 +17,7 @@ from policy_composer.policies.arm import (
     run_activation,
 )
 from policy_composer.policies.base import InitiationError
+from policy_composer.policies.library import LibrarySources, all_names, build_library, model_ids
 from policy_composer.policies.mp.controller import MotionPlanningController
 from policy_composer.policies.planning import (
     VELOCITY_LIMIT,
@@ -25,7 +26,8 @@ from policy_composer.policies.planning import (
     plan_rrt_connect,
     time_parameterize,
 )
-from policy_composer.policies.subtasks import SUBTASKS, Insert, LearnedController
+from policy_composer.policies.registry import LibraryError
+from policy_composer.policies.subtasks import INSERTIONS, SUBTASKS, Insert, LearnedController
 from policy_composer.tasks.gear_assembly import LEFT_START_QPOS
 from policy_composer.tasks.gear_kinematics import hand_down_quat
 
@@ -63,21 +65,16 @@ def test_planner_avoids_the_scene_and_respects_velocity_limits(state_env):
     assert (np.abs(np.diff(np.vstack([start, traj]), axis=0)) / 0.05 <= 0.4 * VELOCITY_LIMIT + 1e-6).all()
 
 
-def blind_insert() -> Insert:
-    """The insertion without its search: it assumes a centred gear and goes down once."""
-    insert = Insert()
-    insert.search = (0.0,)
-    return insert
-
-
 def test_the_insertion_feels_for_the_hole_of_a_gear_held_off_centre(state_env):
-    """9 mm off-centre with 2 mm clearance: the gear lands on the peg's top. Going down once, the insertion backs off
-    with it (it does not let it go there); feeling for the hole, it finds it at another guess and seats the gear."""
+    """9 mm off-centre with 2 mm clearance: the gear lands on the peg's top. Going straight down once (the paper's
+    insertion, `--insertion straight`), the insertion backs off with it (it does not let it go there); feeling for
+    the hole (the default), it finds it at another guess and seats the gear."""
     results = {}
-    for insert_subtask in (blind_insert(), SUBTASKS["insert"]):
+    for insertion in ("straight", "feel"):
         obs, _ = state_env.reset(seed=2)
         pick, move = (MotionPlanningController(state_env, SUBTASKS[n], grasp_offset=0.009) for n in ("pick", "move"))
-        insert = MotionPlanningController(state_env, insert_subtask)
+        insert = build_library(state_env, ["mp_insert"], LibrarySources(insertion=insertion))["mp_insert"]
+        insert_subtask = insert.subtask
         assert pick.can_start(obs) and not move.can_start(obs) and not insert.can_start(obs)
         for controller in (pick, move, insert):
             obs = run_activation(state_env, controller, obs, seed=2)
@@ -92,6 +89,17 @@ def test_the_insertion_feels_for_the_hole_of_a_gear_held_off_centre(state_env):
     assert outcome is Outcome.DONE and info["success"], reason
     assert 1 < tries < len(SUBTASKS["insert"].search)  # the first guess (a centred gear) was blocked
     assert reason.startswith(f"felt for the hole: {tries} guesses"), reason  # the decision log says so
+
+
+def test_the_straight_insertion_is_the_planned_insertions_own(tmp_path):
+    """`--insertion straight` changes the MP and DMP insertions only, and their rollouts' model ids with them, so
+    that a dynamics model trained on one insertion is not used with the other."""
+    models = {"dmp": str(tmp_path / "dmp"), "cnn": str(tmp_path / "cnn")}  # none trained: only the insertion tells
+    feel, straight = LibrarySources(models), LibrarySources(models, insertion="straight")
+    assert INSERTIONS["straight"].search == (0.0,) and len(INSERTIONS["feel"].search) == 7
+    assert {n for n in all_names() if model_ids([n], feel) != model_ids([n], straight)} == {"mp_insert", "dmp_insert"}
+    with pytest.raises(LibraryError, match="no insertion 'sideways': choose one of feel, straight"):
+        LibrarySources(insertion="sideways")
 
 
 def test_the_insertion_search_reaches_every_offset_the_pick_up_leaves(state_env):
@@ -112,7 +120,7 @@ def test_the_regrasp_turns_a_gear_shifted_in_the_hand_into_one_a_pick_up_grasps_
     centred pick-up, move and insertion then seat it."""
     obs, info = state_env.reset(seed=9, options={"start": "pre_insertion"})
     assert abs(state_env.unwrapped.grasp_offset) > 0.01 and not info["gear_on_table"][0]
-    insert = MotionPlanningController(state_env, blind_insert())
+    insert = MotionPlanningController(state_env, INSERTIONS["straight"])
     regrasp = MotionPlanningController(state_env, SUBTASKS["regrasp"])
     obs = run_activation(state_env, insert, obs, seed=9)
     assert insert.outcome is Outcome.FAILED and insert.reason.startswith("backed off"), insert.reason

@@ -74,6 +74,32 @@ def test_reloaded_dataset_equals_what_was_written(tmp_path):
     assert err.mean() < shifted or shifted < 1.0  # not merely some frame of the same scene
 
 
+def test_dart_records_the_experts_own_commands_where_the_arm_was_sent_perturbed_ones(tmp_path, monkeypatch):
+    """DART: the arm strays by the drifting offset, the expert corrects, and the LeRobot dataset holds the expert's
+    labels, not what was sent."""
+    sent = []
+    act = GearAssemblyExpert.act
+
+    def logged(self, obs=None):
+        label = act(self, obs)
+        sent.append((label.numpy(), self.executed.numpy()))
+        return label
+
+    monkeypatch.setattr(GearAssemblyExpert, "act", logged)
+    recipe = load_recipe("gear-insertion-demos")
+    recipe = replace(recipe, expert=replace(recipe.expert, noise_mm=3.0))
+    sidecar = record_recipe(recipe, tmp_path / "dart", episodes=1, settings=EnvSettings(resolution=32),
+                            progress=False)
+    ds = open_dataset(tmp_path / "dart")
+    actions = np.stack(ds.hf_dataset["action"])
+    labels, executed = (np.stack(x[-len(actions):]) for x in zip(*sent))  # the kept episode's steps
+    np.testing.assert_array_equal(actions, labels)
+    strayed = np.abs(executed[:, :7] - labels[:, :7]).max(axis=1)
+    assert strayed.max() > 5e-3, strayed  # radians: the arm was sent elsewhere
+    np.testing.assert_array_equal(executed[:, 7], labels[:, 7])  # the gripper as the expert commands it
+    assert sidecar["expert"]["noise_mm"] == 3.0 and sidecar["episodes"][0]["success"]
+
+
 def test_insertion_demos_labels_and_variety(insertion_demos):
     ds = open_dataset(insertion_demos, required={f"observation.images.{c}": (RES, RES, 3) for c in CAMERA_NAMES})
     sidecar = json.loads((insertion_demos / "meta" / "policy_composer.json").read_text())

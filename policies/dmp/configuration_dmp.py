@@ -12,7 +12,7 @@ FIT_FIRST_SEED = 100
 FIT_EPISODES = 5
 
 
-@register_kind("dmp", label="DMP", subtasks=("pick", "move", "insert"), trained=True)
+@register_kind("dmp", label="DMP", subtasks=("pick", "move", "insert"), trained=True, planned=True)
 @dataclass
 class DMPConfig:
     n_weights_per_dim: int = 10

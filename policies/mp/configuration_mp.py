@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from policy_composer.policies.registry import register_kind
 
 
-@register_kind("mp", label="MP", subtasks=("pick", "move", "insert", "regrasp"))
+@register_kind("mp", label="MP", subtasks=("pick", "move", "insert", "regrasp"), planned=True)
 @dataclass
 class MPConfig:
     # Collision checks one RRT-Connect plan may spend (about 4 s here): a work budget, not a time budget, so that a

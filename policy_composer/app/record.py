@@ -153,7 +153,7 @@ class EpisodeRecorder:
         else:
             self.expert = GearAssemblyExpert(self.buffer, ExpertConfig(
                 grasp_offset=recipe.expert.grasp_offset_mm / 1000.0, teleop=recipe.expert.teleop,
-                arrival_error=recipe.expert.arrival_error_mm / 1000.0))
+                arrival_error=recipe.expert.arrival_error_mm / 1000.0, noise=recipe.expert.noise_mm / 1000.0))
 
     def __call__(self, item: tuple[str | None, int]) -> RecordedEpisode | None:
         name, seed = item
@@ -178,7 +178,8 @@ class EpisodeRecorder:
             if expert.done or EXPERT_PHASES.index(expert.phase) > last:
                 break
             buffer.recording = not recipe.record_phases or expert.phase in recipe.record_phases
-            obs, _, _, _, info = buffer.step(expert.act(obs))
+            label = expert.act(obs)
+            obs, _, _, _, info = buffer.step(expert.executed, label=label)
         success = info is not None and bool(info[recipe.goal][0])
         if buffer.buffered_frames == 0 or (recipe.keep == "success" and not success):
             buffer.discard_episode()

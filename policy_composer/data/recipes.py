@@ -34,6 +34,7 @@ class ExpertSettings:
     grasp_offset_mm: float = 12.0
     teleop: bool = False
     arrival_error_mm: float = 4.0  # teleop: how much further off its rough carry may leave the gear
+    noise_mm: float = 0.0  # DART: the executed TCP target's drifting offset (see ExpertConfig.noise)
 
 
 @dataclass(frozen=True)

@@ -91,7 +91,9 @@ class FrameBuffer(gym.Wrapper):
         self._stage = int(self.env.unwrapped.evaluate()["stage"][0])
         return obs, info
 
-    def step(self, action):
+    def step(self, action, label=None):
+        """Step with `action`; the frame records `label` as its action if given (DART: the expert's own command,
+        where the arm was sent a perturbed one)."""
         interrupt.check()  # a Ctrl-C swallowed mid-episode (say, by a rebuilt scene's __del__) ends it here
         u = self.env.unwrapped
         flat = _flat(action, u)
@@ -101,7 +103,7 @@ class FrameBuffer(gym.Wrapper):
             self._frames.append({
                 **{image_key(c): prev["sensor_data"][c]["rgb"][0].cpu().numpy() for c in self.cameras},
                 "observation.state": prev["extra"]["state"][0].cpu().numpy().astype(np.float32),
-                "action": flat.astype(np.float32),
+                "action": (flat if label is None else _flat(label, u)).astype(np.float32),
                 "stage": np.array([self._stage], dtype=np.int64),
                 "controller": self.controller,  # its index in the dataset's list, when written
                 "next.success": np.array([bool(info["success"][0])]),

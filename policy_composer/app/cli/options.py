@@ -24,7 +24,8 @@ def library_sources(args: argparse.Namespace) -> LibrarySources:
     """The library's model sources from the per-kind flags (`model_options`) and --lerobot."""
     return LibrarySources(models={k.name: getattr(args, k.name) for k in kinds().values() if k.trained},
                           lerobot=tuple(lerobot_source(spec) for spec in getattr(args, "lerobot", ())),
-                          max_grasp_offset=getattr(args, "grasp_offset", DEFAULT_GRASP_OFFSET_MM) / 1000.0)
+                          max_grasp_offset=getattr(args, "grasp_offset", DEFAULT_GRASP_OFFSET_MM) / 1000.0,
+                          insertion=getattr(args, "insertion", LibrarySources.insertion))
 
 
 def lerobot_source(spec: str) -> LeRobotSource:
@@ -43,6 +44,15 @@ def lerobot_source(spec: str) -> LeRobotSource:
         raise LibraryError(f"--lerobot {spec!r}: no LeRobot policy checkpoint at {path} (expected the "
                            f"`pretrained_model` folder that lerobot-train saves, with its config.json)")
     return LeRobotSource(path, subtask, name)
+
+
+def insertion(value: str) -> str:
+    """--insertion, checked when given (the controllers' module loads the simulator: not at every command's start)."""
+    from policy_composer.policies.subtasks import INSERTIONS
+
+    if value not in INSERTIONS:
+        raise argparse.ArgumentTypeError(f"{value!r} is not an insertion: choose one of {', '.join(INSERTIONS)}")
+    return value
 
 
 def make_env(obs_mode: str, args: argparse.Namespace, cameras: tuple[str, ...] | None = None, **kwargs):
@@ -91,6 +101,9 @@ def model_options(p: argparse.ArgumentParser) -> None:
         if kind.trained:
             trained_by = TRAIN_COMMANDS.get(kind.name, "its own training")
             p.add_argument(f"--{kind.name}", default=str(MODELS / kind.name), help=f"{kind.label} model ({trained_by})")
+    p.add_argument("--insertion", type=insertion, default=LibrarySources.insertion,
+                   help="how the MP and DMP insertions go down the peg: feel for the hole, trying offsets 4 mm apart "
+                        "(ours), or straight down once, assuming a centred grasp (the paper's)")
     p.add_argument("--lerobot", action="append", default=[], metavar="PATH:SUBTASK[:NAME]",
                    help="a lerobot checkpoint as controller NAME (default lerobot_SUBTASK) for SUBTASK (it "
                         "needs its own dynamics model to be composed: `policy-composer library add`)")
