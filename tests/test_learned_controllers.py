@@ -230,12 +230,16 @@ def test_lerobot_policy_runs_as_a_controller(policy, rgb_env, request):
         LeRobotPolicyController(rgb_env, checkpoint.parent)
 
 
-def test_the_controller_table_runs_only_the_columns_asked_for(tmp_path):
-    """Every column of every kind runs in the main job's test; here one column asked for is one column run."""
-    result = run_cli("evaluate", "controllers", "--kinds", "MP", "--trials", "1", "--seed", "1", "--subtasks",
-                     "insert", "--out", str(tmp_path))
+def test_the_controller_table_runs_only_the_columns_asked_for(insertion_demos, tmp_path):
+    """Every column of every kind runs in the main job's test; here one column asked for is one column run, and only
+    its controllers are built: a CNN model with an insertion policy alone serves the insert column."""
+    train_cnn_policy(insertion_demos, CNNPolicyConfig(**{**TINY, "epochs": 1, "max_steps": 5}),
+                     out=tmp_path / "cnn" / "insert", progress=False)
+    result = run_cli("evaluate", "controllers", "--kinds", "MP,CNN", "--trials", "1", "--seed", "1", "--subtasks",
+                     "insert", "--cnn", str(tmp_path / "cnn"), "--resolution", "32", "--out", str(tmp_path))
     assert result.returncode == 0, result.stderr[-2000:]
     one = "1/1 (95% CI 21-100%)"  # a single trial says little, and the interval says so
     assert f"MP: pick -, move -, insert {one}, full -" in result.stdout
+    assert "CNN: pick -, move -, insert " in result.stdout
     assert f"| MP | -; paper 10/10 | -; paper 10/10 | {one}; paper 1/10 | -; paper 1/10 |" in \
         (tmp_path / "controllers.md").read_text()

@@ -147,6 +147,8 @@ def evaluate_rows(rows: dict[str, tuple[str, ...]], sources, trials: int, first_
     from policy_composer.policies.library import subtask_of
 
     torch.set_num_threads(1)
+    needed = {s for column in columns for s in SEQUENCES[column]}  # only these controllers are built and loaded
+    rows = {row: tuple(n for n in names if subtask_of(n, sources) in needed) for row, names in rows.items()}
     items = []
     for row, names in rows.items():
         subtasks = {subtask_of(n, sources) for n in names}
