@@ -126,8 +126,9 @@ def model_ids(names, sources: LibrarySources) -> dict[str, str]:
             path = own if own.is_dir() else path
         if path is not None and Path(path).is_dir():  # a missing model: building the controller says so
             ids[name] = weights_id(path)
-        if kind is not None and kind.planned and name == f"{kind.name}_insert" and sources.insertion != "feel":
-            ids[name] = f"{ids.get(name, kind.name)}, {sources.insertion} insertion"  # it behaves otherwise
+        planned_insert = kind is not None and kind.planned and name == f"{kind.name}_insert"
+        if planned_insert and sources.insertion != LibrarySources.insertion:  # it behaves otherwise
+            ids[name] = f"{ids.get(name, kind.name)}, {sources.insertion} insertion"
     return ids
 
 

@@ -185,12 +185,15 @@ class GearAssemblyExpert:
         else:
             action[:7] = self._q_seed[:7]
         action[7] = self._gripper
-        self.executed = torch.as_tensor(self._perturbed(action, target), dtype=torch.float32)
-        return torch.as_tensor(action, dtype=torch.float32)
+        label = torch.as_tensor(action, dtype=torch.float32)
+        perturbed = self._perturbed(action, target)
+        self.executed = label if perturbed is action else torch.as_tensor(perturbed, dtype=torch.float32)
+        return label
 
     def _perturbed(self, action: np.ndarray, target: sapien.Pose | None) -> np.ndarray:
         """`action` with the TCP target moved by the drifting offset (ExpertConfig.noise): it drifts while carrying
-        and inserting and is held after, so letting go does not jerk the arm."""
+        and inserting and is held after. A step without a TCP target (closing or opening the gripper) is sent as
+        the expert commands it."""
         cfg = self.config
         if cfg.noise <= 0.0:
             return action

@@ -47,11 +47,12 @@ def lerobot_source(spec: str) -> LeRobotSource:
 
 
 def insertion(value: str) -> str:
-    """--insertion, checked when given (the controllers' module loads the simulator: not at every command's start)."""
-    from policy_composer.policies.subtasks import INSERTIONS
-
-    if value not in INSERTIONS:
-        raise argparse.ArgumentTypeError(f"{value!r} is not an insertion: choose one of {', '.join(INSERTIONS)}")
+    """--insertion, checked by LibrarySources when given (not at every command's start: the check loads the
+    controllers' module, and with it the simulator)."""
+    try:
+        LibrarySources(insertion=value)
+    except LibraryError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
     return value
 
 
