@@ -205,10 +205,14 @@ class GearAssemblyEnv(BaseEnv):
 
     def reset(self, seed=None, options: dict | None = None):
         """ManiSkill's reset; with options={"start": "pre_insertion"} the gear starts in the left gripper above the
-        peg, off-centre along the fingers by up to GRASP_OFFSET_MAX (or options["grasp_offset_max"])."""
+        peg, off-centre along the fingers by up to GRASP_OFFSET_MAX (or options["grasp_offset_max"]). With
+        options["gear_arrival_max"] (m), the gear is off the peg's axis by a uniform draw within that radius,
+        whatever the grasp (a carry that watched the gear); by default the hand is off by a rough carry's error and
+        the gear by its grasp offset besides."""
         options = dict(options or {})
         start = options.pop("start", "table")
         offset_max = float(options.pop("grasp_offset_max", GRASP_OFFSET_MAX))
+        gear_arrival_max = options.pop("gear_arrival_max", None)
         if start not in START_STATES:
             raise ValueError(f"unknown start state {start!r}: choose one of {list(START_STATES)}")
         if self.num_envs != 1 and start != "table":
@@ -216,10 +220,10 @@ class GearAssemblyEnv(BaseEnv):
         obs, info = super().reset(seed=seed, options=options)
         self.start, self.grasp_offset = start, 0.0
         if start == "pre_insertion":
-            obs, info = self._start_at_pre_insertion(offset_max)
+            obs, info = self._start_at_pre_insertion(offset_max, gear_arrival_max)
         return obs, info
 
-    def _start_at_pre_insertion(self, offset_max: float):
+    def _start_at_pre_insertion(self, offset_max: float, gear_arrival_max: float | None = None):
         """Put the hand at the pre-insertion pose (off by a rough carry's error) with the gear between its open
         fingers, held still while they close on it, then let physics hold it: what the pick-up and carry leave,
         without simulating them."""
@@ -232,6 +236,9 @@ class GearAssemblyEnv(BaseEnv):
         x = plate_direction(self)
         x[2] = 0.0
         x /= np.linalg.norm(x)
+        if gear_arrival_max is not None:
+            radius, angle = gear_arrival_max * np.sqrt(rng.uniform()), rng.uniform(0, 2 * np.pi)
+            arrival[:2] = x[:2] * self.grasp_offset + radius * np.array([np.cos(angle), np.sin(angle)])
         tcp = self.peg_top.p[0].cpu().numpy() + [0.0, 0.0, CARRY_CLEARANCE + grasp_height] + arrival
         solution = LeftArmIK(self).solve_hand_down(tcp, x, LEFT_START_QPOS)
         if solution is None:
@@ -323,6 +330,13 @@ class GearAssemblyEnv(BaseEnv):
         rel = self.peg_module.pose.inv() * self.gear.pose
         axis_cos = rel.to_transformation_matrix()[..., 2, 2]
         return rel.p, axis_cos
+
+    def gear_offset_in_hand(self) -> torch.Tensor:
+        """(B, 3) the gear's origin from the peg's top, in the left hand's frame (m): what a camera on that hand must
+        judge to insert. The expert's recordings keep it as a label (the policies' auxiliary target); no controller
+        reads it."""
+        hand = self.left_arm.tcp.pose.to_transformation_matrix()[..., :3, :3]
+        return (hand.transpose(-1, -2) @ (self.gear.pose.p - self.peg_top.p)[..., None])[..., 0]
 
     def _left_grasping(self) -> torch.Tensor:
         """ManiSkill's `Panda.is_grasping(gear)` (0.5 N, 85 degrees), with the fingers' contact forces read once per

@@ -133,6 +133,24 @@ def test_the_pre_insertion_start_holds_the_gear_above_the_peg_off_centre(state_e
     assert u.start == "table" and int(u.evaluate()["stage"][0]) == 0
 
 
+
+def test_a_gear_centred_pre_insertion_start_unties_the_gears_offset_from_its_grasp(state_env):
+    """With gear_arrival_max the gear, not the hand, is put over the peg (off by at most that), so where it sits in
+    the fingers no longer says which way the peg is: at 0 every grasp offset leaves the gear on the peg's axis."""
+    u = state_env.unwrapped
+
+    def radial() -> float:  # the gear's distance from the peg's axis (m)
+        return float(torch.linalg.norm((u.peg_module.pose.inv() * u.gear.pose).p[0, :2]))
+
+    grasps, off_axis = [], []
+    for seed in range(4, 8):
+        state_env.reset(seed=seed, options={"start": "pre_insertion"})
+        off_axis.append(radial())
+        state_env.reset(seed=seed, options={"start": "pre_insertion", "gear_arrival_max": 0.0})
+        grasps.append(u.grasp_offset)
+        assert radial() < 0.0015
+    assert np.ptp(grasps) > 0.01 and max(off_axis) > 0.004  # the grasps differ, and by default the gear is off
+
 @pytest.mark.parametrize("kwargs, message", [
     (dict(cameras=("head", "wrist")), "valid cameras are"),
     (dict(camera_width=0), "positive integer"),

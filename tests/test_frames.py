@@ -16,7 +16,7 @@ from conftest import run_cli, tree_digest
 from policy_composer.app.pipeline import MARKER, Stage, run_stages
 from policy_composer.data import recorder
 from policy_composer.data.features import DatasetError, image_key, open_dataset, read_info, video_frames
-from policy_composer.data.frames import load_frames
+from policy_composer.data.frames import load_frames, to_model_image
 from policy_composer.data.recorder import FrameBuffer, LeRobotWriter
 from policy_composer.tasks.gear_expert import GearAssemblyExpert
 from policy_composer.tasks.spec import CAMERA_NAMES
@@ -172,3 +172,15 @@ def test_a_reused_stage_with_a_damaged_dataset_is_made_again(damaged, insertion_
     assert any("made again, as demos was" in line for line in lines)
     assert (records["demos"].folder / MARKER).exists()
     assert all(r.reused for r in run_stages(stages, tmp_path / "run", log=lines.append).values())
+
+
+def test_a_window_is_cut_at_the_images_own_resolution():
+    """The insertion's window keeps the pixels it covers: a 128 px image's 64 px window, at 64, is those pixels
+    untouched, not a resampling of the whole image."""
+    import torch
+
+    image = torch.randint(0, 256, (1, 128, 128, 3), dtype=torch.uint8)
+    window = (0.1875, 0.28125, 0.5)
+    cut = to_model_image(image, 64, window)
+    torch.testing.assert_close(cut, image[:, 24:88, 36:100].permute(0, 3, 1, 2).float() / 255.0)
+

@@ -13,8 +13,8 @@ from transforms3d.quaternions import quat2mat
 
 from policy_composer.app.controller_table import start_state
 from policy_composer.data.features import read_sidecar
-from policy_composer.data.frames import to_model_image
-from policy_composer.data.recipes import RecipeError
+from policy_composer.data.frames import load_frames, to_model_image
+from policy_composer.data.recipes import RecipeError, load_recipe
 from policy_composer.policies.arm import np0
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 from policy_composer.policies.cnn.controller import CNNController, hand_step
@@ -75,9 +75,13 @@ def test_cnn_loss_falls_and_checkpoint_reloads(insertion_demos, tmp_path):
     config = CNNPolicyConfig(**TINY)
     data = load_demonstrations(insertion_demos, config, progress=False)
     assert data["image"].shape[1:] == (3, 32, 32) and data["image"].dtype == torch.uint8
+    # The insertion's defaults: the window on the gear and the peg, and the gear's offset as an auxiliary target.
+    assert config.view == "insertion" and config.offset_weight == 1.0
+    assert data["offset"].shape == (len(data["image"]), 3)
     model, losses = train_cnn_policy(insertion_demos, config, out=tmp_path / "cnn", data=data, progress=False)
     assert losses[-1] < losses[0] - 1.0, losses
     again = load_cnn_policy(tmp_path / "cnn", camera="left_forearm", state_dim=1)
+    torch.testing.assert_close(again.offset_mean, data["offset"].mean(0))
     image, state = data["image"][:5].float() / 255, data["state"][:5]
     torch.testing.assert_close(again.act(image, state), model.act(image, state))
     with pytest.raises(CheckpointError, match="trained on camera 'left_forearm', but this controller reads 'head'"):
@@ -145,17 +149,21 @@ def test_a_policy_pushing_against_the_table_keeps_its_command_near_the_hand(rgb_
 def follow_demonstration(env, model, seed: int) -> dict[str, np.ndarray]:
     """The expert replays a recorded insertion demonstration in a live env; at each recorded step, the policy's
     prediction from the live camera image and state, beside the target the training code makes of the expert's
-    command there (the change from its previous command, in the hand's frame, and the gripper)."""
+    command there (the change from its previous command, in the hand's frame, and the gripper), and the gear's
+    offset from the peg."""
     u = env.unwrapped
-    obs, _ = env.reset(seed=seed, options={"start": "pre_insertion"})  # the demonstration's first recorded frame
+    recipe = load_recipe("gear-insertion-demos")
+    options = {"start": "pre_insertion", "gear_arrival_max": recipe.expert.gear_arrival_mm / 1000.0}
+    obs, _ = env.reset(seed=seed, options=options)  # the demonstration's first recorded frame
     expert = GearAssemblyExpert(env, ExpertConfig(teleop=True))  # the recipe's demonstrator
     expert.reset(seed)
-    config, rows = model.config, {"predicted": [], "target": []}
+    config, rows = model.config, {"predicted": [], "target": [], "gear_offset": []}
     prev = obs["extra"]["state"][:1].float()  # an episode's first previous command: the measured joints
     while not expert.done and expert.phase in ("insert", "release", "retreat"):
         action = expert.act(obs)
         state = obs["extra"]["state"][:1].float()
-        image = to_model_image(obs["sensor_data"][config.camera]["rgb"][:1].cpu(), config.image_size)
+        image = to_model_image(obs["sensor_data"][config.camera]["rgb"][:1].cpu(), config.image_size, config.window)
+        rows["gear_offset"].append(u.gear_offset_in_hand()[0].numpy())
         rows["predicted"].append(model.act(image, policy_state(state, config))[0].numpy())
         rows["target"].append(action_target(state, action[None].float(), prev, config.action_space)[0].numpy())
         prev = action[None].float()
@@ -181,6 +189,9 @@ def test_cnn_follows_a_demonstration_it_was_trained_on(insertion_demos, rgb_env)
     gripper = (np.sign(predicted[:, 3]) == np.sign(target[:, 3])).mean()
     # Measured here: 0.37 mm against 4.6 mm, the gripper 35 of 36 steps.
     assert error < 0.3 * motion and gripper >= 0.9, (error, motion, gripper)
+    # The recording's privileged label is the live env's, frame by frame.
+    recorded = load_frames(insertion_demos, ("left_forearm",), 16, episodes=[0], progress=False)["gear_offset"]
+    np.testing.assert_allclose(recorded.numpy(), rows["gear_offset"], atol=1e-5)
 
 
 def test_cnn_controller_acts_from_pixels_within_limits(insertion_demos, rgb_env, tmp_path):

@@ -45,7 +45,7 @@ class CNNController(LearnedController):
 
     def predict(self, obs):
         camera, size = self.policy.config.camera, self.policy.config.image_size
-        image = to_model_image(obs["sensor_data"][camera]["rgb"][:1].cpu(), size)
+        image = to_model_image(obs["sensor_data"][camera]["rgb"][:1].cpu(), size, self.policy.config.window)
         state = policy_state(obs["extra"]["state"][:1].cpu().float(), self.policy.config)
         a = self.policy.act(image, state)[0].numpy().astype(np.float64)
         gripper = float(np.clip(a[-1], -1.0, 1.0))

@@ -26,22 +26,32 @@ class CNNPolicy(nn.Module):
         motion = config.action_dim - 1
         self.head = MixtureDensityHead(config.hidden_dim, motion, config.num_mixtures, config.min_std)
         self.gripper = nn.Linear(config.hidden_dim, 1)
-        for name, dim in (("state", config.state_dim), ("action", motion)):
+        normalised = [("state", config.state_dim), ("action", motion)]
+        if config.offset_weight:  # the auxiliary head (see CNNPolicyConfig.offset_weight), unused when acting
+            self.offset = nn.Linear(config.hidden_dim, 3)
+            normalised.append(("offset", 3))
+        for name, dim in normalised:
             self.register_buffer(f"{name}_mean", torch.zeros(dim))
             self.register_buffer(f"{name}_std", torch.ones(dim))
 
-    def forward(self, image: torch.Tensor, state: torch.Tensor):
-        """image (B, 3, S, S) in [0, 1]; state (B, state_dim) raw -> (mixture parameters, gripper-open logit)."""
-        h = self.encoder(image)
+    def forward(self, image: torch.Tensor, state: torch.Tensor, features: bool = False):
+        """image (B, 3, S, S) in [0, 1]; state (B, state_dim) raw -> (mixture parameters, gripper-open logit), and
+        the image features if asked."""
+        f = self.encoder(image)
         s = (state - self.state_mean) / self.state_std
-        h = self.trunk(torch.cat([h, s], dim=-1))
-        return self.head(h), self.gripper(h)[:, 0]
+        h = self.trunk(torch.cat([f, s], dim=-1))
+        return (self.head(h), self.gripper(h)[:, 0]) + ((f,) if features else ())
 
-    def loss(self, image, state, action) -> torch.Tensor:
-        """NLL of the motion target plus the gripper's cross-entropy; action (B, action_dim), gripper last."""
-        params, logit = self(image, state)
+    def loss(self, image, state, action, offset: torch.Tensor | None = None) -> torch.Tensor:
+        """NLL of the motion target plus the gripper's cross-entropy; action (B, action_dim), gripper last. With
+        an auxiliary head, plus `offset_weight` times the squared error of the gear's offset (B, 3) (normalised)."""
+        params, logit, f = self(image, state, features=True)
         nll = self.head.nll(*params, (action[:, :-1] - self.action_mean) / self.action_std)
-        return nll + F.binary_cross_entropy_with_logits(logit, (action[:, -1] > 0).float())
+        loss = nll + F.binary_cross_entropy_with_logits(logit, (action[:, -1] > 0).float())
+        if self.config.offset_weight:
+            target = (offset - self.offset_mean) / self.offset_std
+            loss = loss + self.config.offset_weight * F.mse_loss(self.offset(f), target)
+        return loss
 
     @torch.no_grad()
     def act(self, image, state, sample: bool = False, generator: torch.Generator | None = None) -> torch.Tensor:

@@ -61,16 +61,22 @@ def load_demonstrations(root: str | Path, config: CNNPolicyConfig, episodes: lis
     images (N, 3, S, S) uint8, arm state (N, state_dim) and action target (N, action_dim)."""
     recipe, stages = DEMONSTRATIONS[config.subtask]
     check_recipe(root, recipe, f"the CNN {config.subtask} policy")
-    frames = load_frames(root, (config.camera,), config.image_size, episodes,
-                         required={"observation.state": (16,), "action": (16,), "stage": (1,)}, progress=progress)
+    required = {"observation.state": (16,), "action": (16,), "stage": (1,)}
+    if config.offset_weight:
+        required["gear_offset"] = (3,)
+    frames = load_frames(root, (config.camera,), config.image_size, episodes, required=required, progress=progress,
+                         window=config.window)
     state, action = frames["observation.state"], frames["action"]
     prev = previous_commands(state, action, frames["episode_index"])  # over whole episodes, before the stage cut
     keep = torch.isin(frames["stage"], torch.tensor(stages)) if stages else torch.ones(len(state), dtype=torch.bool)
     if not keep.any():
         raise DatasetError(f"{root} has no frames of the {config.subtask} subtask (stages {list(stages)}); record "
                            f"{recipe} for it")
-    return {"image": frames[image_key(config.camera)][keep], "state": policy_state(state[keep], config),
+    data = {"image": frames[image_key(config.camera)][keep], "state": policy_state(state[keep], config),
             "action": action_target(state[keep], action[keep], prev[keep], config.action_space)}
+    if config.offset_weight:
+        data["offset"] = frames["gear_offset"][keep]
+    return data
 
 
 def train_cnn_policy(root: str | Path, config: CNNPolicyConfig, out: str | Path | None = None,
@@ -81,7 +87,10 @@ def train_cnn_policy(root: str | Path, config: CNNPolicyConfig, out: str | Path 
     torch.manual_seed(config.seed)
     data = data if data is not None else load_demonstrations(root, config, progress=progress)
     model = CNNPolicy(config)
-    for name, x in (("state", data["state"].float()), ("action", data["action"][:, :-1].float())):
+    normalised = [("state", data["state"].float()), ("action", data["action"][:, :-1].float())]
+    if config.offset_weight:
+        normalised.append(("offset", data["offset"].float()))
+    for name, x in normalised:
         getattr(model, f"{name}_mean").copy_(x.mean(0))
         getattr(model, f"{name}_std").copy_(x.std(0).clamp_min(1e-5))
     opt = adam(model, config)
@@ -93,7 +102,8 @@ def train_cnn_policy(root: str | Path, config: CNNPolicyConfig, out: str | Path 
 
     def batch_loss(idx: torch.Tensor) -> torch.Tensor:
         images = random_shift(data["image"][idx].float() / 255.0, config.shift, gen)
-        return model.loss(images, data["state"][idx], data["action"][idx])
+        offset = data["offset"][idx] if "offset" in data else None
+        return model.loss(images, data["state"][idx], data["action"][idx], offset)
 
     losses = fit_epochs(model, opt, n, config.batch_size, config.epochs, batch_loss, gen, "training cnn policy",
                         progress, schedule=schedule, postfix="nll")

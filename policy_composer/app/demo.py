@@ -89,6 +89,7 @@ PROFILES = {
 def stages(p: Profile, workers: int = 1) -> list[Stage]:
     """The main job's stages at the sizes of profile `p`; the episode loops run on `workers` processes (not in a
     stage's key: the results are the same for any number)."""
+    from policy_composer.data.features import FEATURES_REVISION
     from policy_composer.data.recipes import load_recipe
     from policy_composer.policies.library import LIBRARY_REVISION, all_names
     from policy_composer.policies.registry import kinds
@@ -111,7 +112,7 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
     table_kinds = tuple(k.label for k in kinds().values())
 
     def record(recipe, episodes):
-        return {"recipe": asdict(recipe), "episodes": episodes, **env}
+        return {"recipe": asdict(recipe), "episodes": episodes, "features_revision": FEATURES_REVISION, **env}
 
     return [
         Stage("insertion-demos", f"record the insertion demonstrations ({p.insertion_demos})",

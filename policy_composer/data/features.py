@@ -21,6 +21,11 @@ def image_key(camera: str) -> str:
     return f"observation.images.{camera}"
 
 
+# Bump when dataset_features changes: the main job's recording stages key on it, so no recording without a column
+# the models need is reused.
+FEATURES_REVISION = 2
+
+
 def dataset_features(cameras: tuple[str, ...] = CAMERA_NAMES, resolution: int = 128) -> dict[str, dict]:
     """LeRobot feature spec of a recording: camera videos, joint state, action and the per-frame labels."""
     unknown = set(cameras) - set(CAMERA_NAMES)
@@ -37,6 +42,8 @@ def dataset_features(cameras: tuple[str, ...] = CAMERA_NAMES, resolution: int = 
         "progress": {"dtype": "float32", "shape": (1,), "names": None},
         # GearAssemblyEnv.evaluate()["stage"] of the observed state: 0 pick, 1 move, 2 insert, 3 done.
         "stage": {"dtype": "int64", "shape": (1,), "names": None},
+        # GearAssemblyEnv.gear_offset_in_hand() of the observed state (m): a privileged label, never a policy's input.
+        "gear_offset": {"dtype": "float32", "shape": (3,), "names": ["x", "y", "z"]},
         # Index into the sidecar's "controllers" list: which controller produced this frame's action.
         "controller": {"dtype": "int64", "shape": (1,), "names": None},
         "next.success": {"dtype": "bool", "shape": (1,), "names": None},
@@ -95,8 +102,10 @@ def check_features(root: str | Path, info: dict, required: dict[str, tuple[int, 
     if missing:
         cameras = [k for k in missing if k.startswith("observation.images.")]
         what = "camera(s)" if len(cameras) == len(missing) else "feature(s)"
-        raise DatasetError(f"dataset {root} lacks the {what} {missing}; it has {sorted(features)}. "
-                           f"Record it with those cameras, or configure the consumer for the ones it has.")
+        fix = ("Record it with those cameras, or configure the consumer for the ones it has." if cameras else
+               "Record it again with this version of policy-composer, which records them, or configure the consumer "
+               "not to need them.")
+        raise DatasetError(f"dataset {root} lacks the {what} {missing}; it has {sorted(features)}. {fix}")
     for key, shape in required.items():
         if shape is not None and tuple(features[key]["shape"]) != tuple(shape):
             raise DatasetError(f"dataset {root}: feature {key!r} has shape {tuple(features[key]['shape'])}, "

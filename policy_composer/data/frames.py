@@ -14,13 +14,19 @@ import torch.nn.functional as F
 
 from policy_composer.data.features import image_key, open_dataset
 
-LABELS = ("observation.state", "action", "progress", "stage", "controller", "episode_index", "frame_index")
+LABELS = ("observation.state", "action", "progress", "stage", "gear_offset", "controller", "episode_index",
+          "frame_index")
 
 
-def to_model_image(rgb: torch.Tensor, size: int) -> torch.Tensor:
-    """(B, H, W, 3) uint8 or (B, 3, H, W) float in [0, 1] -> (B, 3, size, size) float in [0, 1]."""
+def to_model_image(rgb: torch.Tensor, size: int, window: tuple[float, float, float] | None = None) -> torch.Tensor:
+    """(B, H, W, 3) uint8 or (B, 3, H, W) float in [0, 1] -> (B, 3, size, size) float in [0, 1], of the square
+    `window` (top, left, side as fractions of the image) if given."""
     if rgb.dtype == torch.uint8:
         rgb = rgb.permute(0, 3, 1, 2).float() / 255.0
+    if window is not None:
+        h, w = rgb.shape[-2:]
+        top, left, side = round(window[0] * h), round(window[1] * w), round(window[2] * h)
+        rgb = rgb[..., top:top + side, left:left + side]
     if rgb.shape[-1] != size:
         rgb = F.interpolate(rgb, size=(size, size), mode="bilinear", antialias=True, align_corners=False)
     return rgb.clamp(0, 1)
@@ -37,9 +43,11 @@ def random_shift(images: torch.Tensor, shift: int, generator: torch.Generator) -
 
 
 def load_frames(root: str | Path, cameras: tuple[str, ...], size: int, episodes: list[int] | None = None,
-                required: dict | None = None, progress: bool = True) -> dict[str, torch.Tensor]:
-    """Every frame of `episodes` (default: all): one uint8 (N, 3, size, size) tensor per camera under its
-    image key, and each label of LABELS the dataset has, flattened to (N,) where it is a scalar."""
+                required: dict | None = None, progress: bool = True,
+                window: tuple[float, float, float] | None = None) -> dict[str, torch.Tensor]:
+    """Every frame of `episodes` (default: all): one uint8 (N, 3, size, size) tensor per camera (of its `window`,
+    see to_model_image) under its image key, and each label of LABELS the dataset has, flattened to (N,) where it
+    is a scalar."""
     from tqdm import tqdm
 
     keys = [image_key(c) for c in cameras]
@@ -49,7 +57,7 @@ def load_frames(root: str | Path, cameras: tuple[str, ...], size: int, episodes:
     for batch in tqdm(loader, desc=f"decoding {Path(root).name} ({', '.join(cameras)})", unit="batch",
                       disable=not progress):
         for k in keys:
-            parts.setdefault(k, []).append((to_model_image(batch[k], size) * 255).round().to(torch.uint8))
+            parts.setdefault(k, []).append((to_model_image(batch[k], size, window) * 255).round().to(torch.uint8))
         for k in LABELS:
             if k in batch:
                 v = batch[k]

@@ -34,6 +34,10 @@ class ExpertSettings:
     grasp_offset_mm: float = 12.0
     teleop: bool = False
     arrival_error_mm: float = 4.0  # teleop: how much further off its rough carry may leave the gear
+    # Pre-insertion starts: the gear is off the peg's axis by up to this (a uniform draw in the disc), whatever the
+    # grasp, as after a carry that watched the gear; 0: the hand is off by a rough carry's error and the gear by
+    # its grasp offset besides, so where the gear sits in the fingers tells which way the peg is.
+    gear_arrival_mm: float = 0.0
     noise_mm: float = 0.0  # DART: the executed TCP target's drifting offset (see ExpertConfig.noise)
 
 

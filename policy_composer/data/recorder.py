@@ -58,6 +58,10 @@ def _flat(action, env) -> np.ndarray:
     return torch.as_tensor(action, dtype=torch.float32).reshape(-1).cpu().numpy()
 
 
+def _gear_offset(env) -> np.ndarray:
+    return env.gear_offset_in_hand()[0].cpu().numpy().astype(np.float32)
+
+
 class FrameBuffer(gym.Wrapper):
     """Wraps a single GearAssembly-v1 env (obs_mode "rgb") and buffers the frames of the episode being recorded,
     with `cameras` (default: every camera the env renders; it may render more, for a controller that reads them).
@@ -88,7 +92,7 @@ class FrameBuffer(gym.Wrapper):
         obs, info = self.env.reset(**kwargs)
         self._frames = []
         self._obs = obs
-        self._stage = int(self.env.unwrapped.evaluate()["stage"][0])
+        self._stage, self._offset = int(self.env.unwrapped.evaluate()["stage"][0]), _gear_offset(self.env.unwrapped)
         return obs, info
 
     def step(self, action, label=None):
@@ -105,11 +109,12 @@ class FrameBuffer(gym.Wrapper):
                 "observation.state": prev["extra"]["state"][0].cpu().numpy().astype(np.float32),
                 "action": (flat if label is None else _flat(label, u)).astype(np.float32),
                 "stage": np.array([self._stage], dtype=np.int64),
+                "gear_offset": self._offset,
                 "controller": self.controller,  # its index in the dataset's list, when written
                 "next.success": np.array([bool(info["success"][0])]),
             })
         self._obs = obs
-        self._stage = int(info["stage"][0])
+        self._stage, self._offset = int(info["stage"][0]), _gear_offset(u)
         return obs, reward, terminated, truncated, info
 
     @property

@@ -75,10 +75,10 @@ def add_commands(sub) -> None:
     tr_policy.add_argument("--dataset", help="its demonstrations (default: datasets/gear-insertion-demos for the "
                            "insertion, datasets/gear-transport-demos for the pick-up and the move)")
     add_config_options(tr_policy, CNNPolicyConfig, {
-        "subtask": "subtask", "camera": "camera", "backbone": "backbone", "epochs": "epochs",
+        "subtask": "subtask", "camera": "camera", "view": "view", "backbone": "backbone", "epochs": "epochs",
         "image_size": "image-size", "num_mixtures": "mixtures", "action_space": "action-space",
         "proprioception": "proprioception", "shift": "shift", "batch_size": "batch-size", "seed": "seed",
-        "max_steps": "max-steps"})
+        "max_steps": "max-steps", "offset_weight": "offset-weight"})
     tr_policy.add_argument("--threads", type=at_least(1), default=2)
     tr_policy.add_argument("--out", help=f"checkpoint folder (default: {MODELS / 'cnn'}/SUBTASK, where the "
                            "library's CNN model looks)")
