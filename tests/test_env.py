@@ -133,7 +133,6 @@ def test_the_pre_insertion_start_holds_the_gear_above_the_peg_off_centre(state_e
     assert u.start == "table" and int(u.evaluate()["stage"][0]) == 0
 
 
-
 def test_a_gear_centred_pre_insertion_start_unties_the_gears_offset_from_its_grasp(state_env):
     """With gear_arrival_max the gear, not the hand, is put over the peg (off by at most that), so where it sits in
     the fingers no longer says which way the peg is: at 0 every grasp offset leaves the gear on the peg's axis."""
@@ -150,6 +149,7 @@ def test_a_gear_centred_pre_insertion_start_unties_the_gears_offset_from_its_gra
         grasps.append(u.grasp_offset)
         assert radial() < 0.0015
     assert np.ptp(grasps) > 0.01 and max(off_axis) > 0.004  # the grasps differ, and by default the gear is off
+
 
 @pytest.mark.parametrize("kwargs, message", [
     (dict(cameras=("head", "wrist")), "valid cameras are"),

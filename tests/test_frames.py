@@ -183,4 +183,3 @@ def test_a_window_is_cut_at_the_images_own_resolution():
     window = (0.1875, 0.28125, 0.5)
     cut = to_model_image(image, 64, window)
     torch.testing.assert_close(cut, image[:, 24:88, 36:100].permute(0, 3, 1, 2).float() / 255.0)
-

@@ -152,8 +152,7 @@ def follow_demonstration(env, model, seed: int) -> dict[str, np.ndarray]:
     command there (the change from its previous command, in the hand's frame, and the gripper), and the gear's
     offset from the peg."""
     u = env.unwrapped
-    recipe = load_recipe("gear-insertion-demos")
-    options = {"start": "pre_insertion", "gear_arrival_max": recipe.expert.gear_arrival_mm / 1000.0}
+    options = load_recipe("gear-insertion-demos").reset_options()
     obs, _ = env.reset(seed=seed, options=options)  # the demonstration's first recorded frame
     expert = GearAssemblyExpert(env, ExpertConfig(teleop=True))  # the recipe's demonstrator
     expert.reset(seed)

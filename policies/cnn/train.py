@@ -102,7 +102,7 @@ def train_cnn_policy(root: str | Path, config: CNNPolicyConfig, out: str | Path 
 
     def batch_loss(idx: torch.Tensor) -> torch.Tensor:
         images = random_shift(data["image"][idx].float() / 255.0, config.shift, gen)
-        offset = data["offset"][idx] if "offset" in data else None
+        offset = data["offset"][idx] if config.offset_weight else None
         return model.loss(images, data["state"][idx], data["action"][idx], offset)
 
     losses = fit_epochs(model, opt, n, config.batch_size, config.epochs, batch_loss, gen, "training cnn policy",

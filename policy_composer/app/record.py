@@ -167,10 +167,7 @@ class EpisodeRecorder:
         from policy_composer.tasks.rollout import episode_limit
 
         recipe, buffer, expert = self.recipe, self.buffer, self.expert
-        options = {"start": recipe.start, "grasp_offset_max": recipe.expert.grasp_offset_mm / 1000.0}
-        if recipe.expert.gear_arrival_mm > 0:
-            options["gear_arrival_max"] = recipe.expert.gear_arrival_mm / 1000.0
-        obs, _ = buffer.reset(seed=seed, options=options)
+        obs, _ = buffer.reset(seed=seed, options=recipe.reset_options())
         expert.reset(seed)
         buffer.controller = expert.name
         info = None

@@ -59,6 +59,13 @@ class Recipe:
     cameras: tuple[str, ...] = CAMERA_NAMES  # cameras to render and record
     expert: ExpertSettings = field(default_factory=ExpertSettings)
 
+    def reset_options(self) -> dict:
+        """The env's reset options for the expert's episodes: where they start, and how the gear sits there."""
+        options = {"start": self.start, "grasp_offset_max": self.expert.grasp_offset_mm / 1000.0}
+        if self.expert.gear_arrival_mm > 0:
+            options["gear_arrival_max"] = self.expert.gear_arrival_mm / 1000.0
+        return options
+
     def __post_init__(self):
         check_plain_name(self.name, "recipe")
         if self.driver not in DRIVERS:
