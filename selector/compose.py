@@ -28,6 +28,7 @@ class Activation:
     steps: int = 0
     outcome: str = "running"
     reason: str = ""
+    subtask: str = ""  # the part of the task the controller serves ("" for one without a subtask)
 
 
 @dataclass
@@ -127,7 +128,8 @@ def compose_episode(env, library: dict[str, Controller], world: GearWorldModel, 
             decision = selector.decide(world.encode(obs), applicable)
             result.decisions.append({"step": step, **decision.log(0)})
             chosen = library[decision.chosen(0)]
-            result.activations.append(Activation(chosen.name, step))
+            subtask = getattr(chosen, "subtask", None)
+            result.activations.append(Activation(chosen.name, step, subtask=getattr(subtask, "name", "")))
             try:
                 chosen.start(obs, seed=seed * 1000 + step)
                 return chosen

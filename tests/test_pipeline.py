@@ -183,18 +183,22 @@ def test_the_main_job_runs_every_stage_reuses_them_and_writes_a_report_a_browser
     assert first.returncode == 0, first.stdout[-3000:] + _messages(first.stderr)[-4000:]
     resumed = [line for line in first.stdout.splitlines() if line.startswith("[")]
     assert ": reused " in resumed[0] and ": reused " in resumed[1]  # the demos finished before the interrupt
-    assert resumed[2].startswith("[3/12] record the full-task") and resumed[2].endswith("(resuming)"), resumed[2]
+    assert resumed[2].startswith("[3/16] record the full-task") and resumed[2].endswith("(resuming)"), resumed[2]
     second = run_cli(*cmd[1:], cwd=ROOT)
     assert second.returncode == 0, _messages(second.stderr)[-4000:]
     stage_lines = [line for line in second.stdout.splitlines() if line.startswith("[")]
-    assert len(stage_lines) == 12 and all(": reused " in line for line in stage_lines), second.stdout
+    assert len(stage_lines) == 16 and all(": reused " in line for line in stage_lines), second.stdout
 
     report = (tmp_path / "report.md").read_text()
     for row in ("| MP |", "| DMP |", "| CNN |", "| composed (selector) |", "| head |", "| left_forearm |",
                 "| right_forearm |", "planning steps to the goal", "| step | chosen |", "## Machine",
                 "(95% CI ", "| composed (selector) | picked ", " frames/s", " episodes/s", " trials/s"):
         assert row in report, f"{row!r} missing from the report"
-    assert "0 of 12 stages ran" in report
+    assert "0 of 16 stages ran" in report
+    # The paper's experiment comes first: its Table I with the straight-down insertions, and which controller
+    # served each subtask in its composed episodes.
+    assert report.index("## Table I, the paper's experiment") < report.index("## Table I beyond the paper")
+    assert report.index("| subtask | finished by | tried, not finished |") < report.index("## Table I beyond")
 
     # Table I's stage: every kind's row, each cell one trial with its interval beside the paper's.
     table = next((tmp_path / "pipeline").glob("table-*"))
@@ -202,6 +206,11 @@ def test_the_main_job_runs_every_stage_reuses_them_and_writes_a_report_a_browser
             if line.startswith("| ") and "/1 (95% CI " in line}
     assert set(rows) == {"| MP", "| DMP", "| CNN"} and all(r.count("/1 (95% CI ") == 4 for r in rows.values()), rows
     assert "; paper 10/10 |" in rows["| MP"] and (table / "controllers.csv").read_text().count("\n") == 1 + 3 * 4
+    # The straight-down table runs the planned kinds' insert and full task only (pick and move do not change).
+    straight = next((tmp_path / "pipeline").glob("straight-table-*"))
+    rows = {line.split(" | ")[0]: line for line in (straight / "controllers.md").read_text().splitlines()
+            if line.startswith("| ") and "/1 (95% CI " in line}
+    assert set(rows) == {"| MP", "| DMP"} and all(r.count("/1 (95% CI ") == 2 for r in rows.values()), rows
     # The MDP stage: both experiments' tables, figures, trace and report.
     mdp = next((tmp_path / "pipeline").glob("mdp-*"))
     for name in ("mdp19_solution.png", "mdp19_episodes.csv", "mdp19_trace.json", "mdp100_heatmap_lookahead.png",
@@ -216,7 +225,8 @@ def test_the_main_job_runs_every_stage_reuses_them_and_writes_a_report_a_browser
 
     probe = _browser_check(tmp_path / "report.html")
     images = dict(probe["images"])
-    assert {"report/goal_score.png", "report/mdp19_solution.png", "report/mdp100_heatmap_lookahead.png"} <= set(images)
+    assert {"report/goal_score.png", "report/mdp19_solution.png", "report/mdp100_heatmap_lookahead.png",
+            "report/straight_goal_score.png"} <= set(images)
     assert all(width > 0 for width in images.values()), f"figures that did not render: {images}"
     assert probe["videos"] and all(state >= 1 and width > 0 for _, state, width in probe["videos"]), probe["videos"]
 

@@ -12,7 +12,7 @@ import gymnasium as gym
 import pytest
 import torch
 
-from policy_composer.app.composition import back_offs, summary
+from policy_composer.app.composition import back_offs, served_table, summary
 from policy_composer.data.features import image_key
 from policy_composer.data.frames import load_frames
 from policy_composer.learning.checkpoint import CheckpointError
@@ -206,6 +206,23 @@ def test_the_summary_counts_back_offs_and_what_came_of_them():
     assert back_offs(episodes[2:3]) == "" and "backed off" not in summary(episodes[2:3], ComposeConfig())
 
 
+def test_the_served_table_says_which_controller_finished_each_subtask():
+    """The paper's story in one table: the planner picks, the CNN inserts where the planner's insertion failed."""
+    def run(seed, *activations):
+        return ComposedEpisode(seed, True, 300, activations=[Activation(c, 0, 10, o, subtask=s)
+                                                             for c, s, o in activations])
+
+    episodes = [run(0, ("mp_pick", "pick", "done"), ("mp_insert", "insert", "failed"),
+                    ("cnn_insert", "insert", "done")),
+                run(1, ("dmp_pick", "pick", "done"), ("cnn_insert", "insert", "done")),
+                run(2, ("mp_pick", "pick", "done"), ("cnn_insert", "insert", "preempted"), ("random", "", "done"))]
+    assert served_table(episodes) == ["| subtask | finished by | tried, not finished |", "|---|---|---|",
+                                      "| pick | mp_pick 2, dmp_pick 1 | - |",
+                                      "| insert | cnn_insert 2 | mp_insert 1, cnn_insert 1 |"]
+    assert "## Which controller served each subtask" in summary(episodes, ComposeConfig())
+    assert served_table([run(3, ("random", "", "done"))]) == []  # no subtasks: no table
+
+
 def test_a_composed_episode_runs_end_to_end(world):
     """The selector's first choice is explained by its scores, the frames carry the goal score, and an episode depends
     on its seed only."""
@@ -225,7 +242,8 @@ def test_a_composed_episode_runs_end_to_end(world):
     # At the reset only the pick may start: the insertion is outside its initiation set and gets no score.
     assert first["step"] == 0 and first["choice"] == "mp_pick"
     assert first["scores"]["mp_insert"] is None and first["scores"]["mp_pick"] is not None
-    assert result.activations[0].controller == "mp_pick" and result.activations[0].outcome == "done"
+    assert (result.activations[0].controller, result.activations[0].subtask, result.activations[0].outcome) == \
+        ("mp_pick", "pick", "done")
     assert len(frames) == result.steps and all(0.0 <= s <= 1.0 for _, s in frames)
     # After the pick (gear lifted, not at the peg) neither controller may start: the episode stops there.
     assert result.sequence == ["mp_pick"] and not result.success

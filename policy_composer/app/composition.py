@@ -32,11 +32,13 @@ class VideoWriter:
 
     def __init__(self, camera: str, scale: int = 2):
         self.camera, self.scale, self.frames = camera, scale, []
+        self.trace: list[tuple[str, float]] = []  # per step: the running controller and the goal score
 
     def __call__(self, obs, controller: str, score: float) -> None:
         import numpy as np
         from PIL import Image, ImageDraw
 
+        self.trace.append((controller, score))
         rgb = obs["sensor_data"][self.camera]["rgb"][0].cpu().numpy()
         img = Image.fromarray(rgb).resize((rgb.shape[1] * self.scale, rgb.shape[0] * self.scale), Image.NEAREST)
         draw = ImageDraw.Draw(img)
@@ -61,6 +63,35 @@ class VideoWriter:
                 raise OSError(errno.EIO, f"the video holds {written} of its {len(self.frames)} frames (is the disk "
                               "full?); nothing was put in its place", str(path))
         return path
+
+
+def plot_goal_score(trace: list[tuple[str, float]], seed: int, path: Path) -> Path:
+    """The paper's figure of a composed trial: the goal score of each step's image, coloured by the running
+    controller."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(dict.fromkeys(name for name, _ in trace))
+    colors = dict(zip(names, plt.get_cmap("tab10").colors))
+    fig, ax = plt.subplots(figsize=(8, 3))
+    start = 0
+    for end in [k for k in range(1, len(trace)) if trace[k][0] != trace[k - 1][0]] + [len(trace)]:
+        name = trace[start][0]
+        ax.plot(range(start, end + (end < len(trace))), [g for _, g in trace[start:end + 1]], color=colors[name],
+                lw=2, label=name if name not in ax.get_legend_handles_labels()[1] else None)
+        start = end
+    ax.set_ylim(0, 1)
+    ax.set_xlabel("control step")
+    ax.set_ylabel("goal score")
+    ax.set_title(f"Composed trial, seed {seed}: the goal score and the controller the selector ran", fontsize=9)
+    ax.legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    with atomic.replacing(path) as tmp:
+        fig.savefig(tmp, dpi=120, format="png")
+    plt.close(fig)
+    return path
 
 
 class Composer:
@@ -89,6 +120,8 @@ class Composer:
         result = compose_episode(self.env, self.library, self.world, self.config, seed, on_frame=video)
         if video is not None:
             video.save(self.out / f"composed_seed{seed}.mp4", int(self.env.unwrapped.control_freq))
+            if video.trace:
+                plot_goal_score(video.trace, seed, self.out / f"composed_seed{seed}_goal_score.png")
         return result
 
     def close(self) -> None:
@@ -244,6 +277,23 @@ def failure_table(episodes: list[ComposedEpisode]) -> list[str]:
         for (what, ended, gear), seeds in causes]
 
 
+def served_table(episodes: list[ComposedEpisode]) -> list[str]:
+    """Which controller served each subtask, as the lines of a markdown table: per subtask (in the order they came),
+    the controllers whose activations finished it and those whose activations ended otherwise, with counts."""
+    served: dict[str, tuple[Counter, Counter]] = {}
+    for a in (a for e in episodes for a in e.activations if a.subtask):
+        done, other = served.setdefault(a.subtask, (Counter(), Counter()))
+        (done if a.outcome == "done" else other)[a.controller] += 1
+    if not served:
+        return []
+
+    def listed(counts: Counter) -> str:
+        return ", ".join(f"{name} {n}" for name, n in counts.most_common()) or "-"
+
+    return ["| subtask | finished by | tried, not finished |", "|---|---|---|"] + [
+        f"| {subtask} | {listed(done)} | {listed(other)} |" for subtask, (done, other) in served.items()]
+
+
 def summary(episodes: list[ComposedEpisode], config: ComposeConfig) -> str:
     n, ok = len(episodes), sum(e.success for e in episodes)
     lines = ["# Composed controllers (the selector over the whole library)", "",
@@ -262,6 +312,9 @@ def summary(episodes: list[ComposedEpisode], config: ComposeConfig) -> str:
     if broken:
         lines += ["Left out because its predicted goal score was not finite (NaN or Inf: check its dynamics model "
                   "and the goal scorer): " + ", ".join(f"{n} in {c} decisions" for n, c in broken.items()) + ".", ""]
+    served = served_table(episodes)
+    if served:
+        lines += ["## Which controller served each subtask", "", *served, ""]
     lines += ["## Controller sequences", "", "| sequence | episodes |", "|---|---|"]
     lines += [f"| {s} | {c} |" for s, c in sequence_counts(episodes)]
     failed = [e for e in episodes if not e.success]

@@ -21,6 +21,9 @@ from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 from policy_composer.selector.configuration import ComposeConfig
 from policy_composer.tasks.spec import CAMERA_NAMES as CAMERAS
 
+# The controllers that `--insertion straight` changes: the paper's open-loop insertions.
+STRAIGHT = ("mp_insert", "dmp_insert")
+
 
 @dataclass(frozen=True)
 class Profile:
@@ -100,6 +103,7 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
     transport = load_recipe("gear-transport-demos")
     full_task = replace(load_recipe("gear-full-task-demos"), train_episodes=p.train_demos)
     rollouts = load_recipe("gear-controller-rollouts")
+    straight_rollouts = replace(rollouts, controllers=STRAIGHT)
     cnn = {s: CNNPolicyConfig(subtask=s, epochs=p.cnn_epochs, num_mixtures=p.mixtures, image_size=p.image_size,
                               max_steps=p.cnn_max_steps) for s in ("pick", "move", "insert")}
     vae = VAEConfig(epochs=p.vae_epochs, image_size=p.image_size)
@@ -147,6 +151,27 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
         Stage("table", f"Table I: each controller kind on each subtask ({p.table_trials} per cell)",
               {"trials": p.table_trials, "kinds": table_kinds, **env, **library},
               lambda out, i: _table(out, i, p, table_kinds, workers), inputs=("dmp", "cnn")),
+        # The paper's Table I as the paper got it: the MP and DMP insertions go straight down once
+        # (`--insertion straight`); their rollouts and dynamics models are recorded and trained again for it.
+        Stage("straight-rollouts", f"record rollouts of the straight-down insertions ({p.rollouts} each)",
+              {**record(straight_rollouts, p.rollouts), **library},
+              lambda out, i: _record(straight_rollouts, out, p.rollouts, p.resolution, workers,
+                                     _sources(i, "straight")),
+              inputs=("dmp", "cnn"), resumable=True, verify=_verify_dataset),
+        Stage("straight-world-model", "train the straight-down insertions' dynamics models",
+              {"dynamics": asdict(dynamics), "controllers": STRAIGHT},
+              lambda out, i: _train_straight(out, i, dynamics),
+              inputs=("world-model", "straight-rollouts", "full-task-demos")),
+        Stage("straight-table", f"Table I with the straight-down insertions: MP and DMP ({p.table_trials} per cell)",
+              {"trials": p.table_trials, **env, **library},
+              lambda out, i: _table(out, i, p, ("MP", "DMP"), workers, "straight", ("insert", "full")),
+              inputs=("dmp", "cnn")),
+        Stage("straight-compose", f"compose the library with the straight-down insertions (episodes: "
+              f"{p.compose_episodes})",
+              {"compose": asdict(compose), "episodes": p.compose_episodes, **env, **library},
+              lambda out, i: _compose(out, i, compose, list(range(p.compose_episodes)), p.resolution, None,
+                                       workers, "straight"),
+              inputs=("dmp", "cnn", "straight-world-model"), resumable=True),
         Stage("compose", f"compose the library with the selector (episodes: {p.compose_episodes})",
               {"compose": asdict(compose), "episodes": p.compose_episodes, **env, **library},
               lambda out, i: _compose(out, i, compose, list(range(p.compose_episodes)), p.resolution, None,
@@ -203,10 +228,11 @@ def _verify_dataset(out: Path) -> None:
         verify_dataset(out / "dataset")
 
 
-def _sources(inputs: dict[str, Path]):
+def _sources(inputs: dict[str, Path], insertion: str = "feel"):
     from policy_composer.policies.library import LibrarySources
 
-    return LibrarySources(models={"dmp": str(inputs["dmp"] / "dmp"), "cnn": str(inputs["cnn"] / "cnn")})
+    return LibrarySources(models={"dmp": str(inputs["dmp"] / "dmp"), "cnn": str(inputs["cnn"] / "cnn")},
+                          insertion=insertion)
 
 
 def _fit_dmp(out: Path, episodes: int) -> dict:
@@ -251,6 +277,23 @@ def _train_world(out: Path, inputs: dict[str, Path], vae, dynamics, goal) -> dic
     return {"timings": timings}
 
 
+def _train_straight(out: Path, inputs: dict[str, Path], dynamics) -> dict:
+    """The world model with the straight-down insertions' dynamics models in place of the feeling ones': the same
+    VAE, goal scorers and other controllers' models (copied), the two insertions' trained on their own rollouts."""
+    import torch
+
+    from policy_composer.selector.train import train_world_model
+
+    torch.set_num_threads(2)
+    world = out / "world"
+    if world.exists():
+        shutil.rmtree(world)
+    shutil.copytree(inputs["world-model"] / "world", world)
+    timings = train_world_model(inputs["straight-rollouts"] / "dataset", inputs["full-task-demos"] / "dataset", world,
+                                dynamics_config=dynamics, controllers=list(STRAIGHT), reuse_vae=True)
+    return {"timings": timings}
+
+
 def _evaluate_goal(out: Path, inputs: dict[str, Path]) -> dict:
     from policy_composer.selector.evaluate import evaluate_goal_scores
 
@@ -258,10 +301,13 @@ def _evaluate_goal(out: Path, inputs: dict[str, Path]) -> dict:
     return {"metrics": metrics}
 
 
-def _table(out: Path, inputs: dict[str, Path], p: Profile, kinds: tuple[str, ...], workers: int) -> dict:
+def _table(out: Path, inputs: dict[str, Path], p: Profile, kinds: tuple[str, ...], workers: int,
+           insertion: str = "feel", columns: tuple[str, ...] | None = None) -> dict:
     from policy_composer.app.controller_table import evaluate_table, write_table
+    from policy_composer.tasks.spec import SUBTASK_COLUMNS
 
-    rows = evaluate_table(list(kinds), _sources(inputs), p.table_trials, 0, p.resolution, workers=workers)
+    rows = evaluate_table(list(kinds), _sources(inputs, insertion), p.table_trials, 0, p.resolution, workers=workers,
+                          columns=columns or SUBTASK_COLUMNS)
     write_table(rows, out)
     return {"workers": workers,
             "rows": {kind: {c: [cell.successes, cell.trials, cell.safety_stops] for c, cell in row.items()}
@@ -270,10 +316,11 @@ def _table(out: Path, inputs: dict[str, Path], p: Profile, kinds: tuple[str, ...
 
 
 def _compose(out: Path, inputs: dict[str, Path], config, seeds: list[int], resolution: int,
-             knock_out_step: int | None, workers: int) -> dict:
+             knock_out_step: int | None, workers: int, insertion: str = "feel") -> dict:
     from policy_composer.app.composition import compose_library
 
-    episodes = compose_library(inputs["world-model"] / "world", _sources(inputs), config, seeds, out, videos=1,
+    world = inputs["straight-world-model" if insertion == "straight" else "world-model"] / "world"
+    episodes = compose_library(world, _sources(inputs, insertion), config, seeds, out, videos=1,
                                resolution=resolution, knock_out_step=knock_out_step, resume=True,
                                workers=workers)
     return {"successes": [e.success for e in episodes], "knocked_out": [e.knocked_out for e in episodes],

@@ -18,6 +18,7 @@ from policy_composer.app.composition import (
     load_episodes,
     progressive,
     sequence_counts,
+    served_table,
 )
 from policy_composer.app.controller_table import Cell, table_row
 from policy_composer.app.pipeline import StageRecord
@@ -49,8 +50,12 @@ def write_report(out: Path, profile, records: dict[str, StageRecord], wall_secon
 
     composed = load_episodes(records["compose"].folder)
     knocked = load_episodes(records["knock-out"].folder)
+    straight = load_episodes(records["straight-compose"].folder)
     sections = [
         _header(profile, records, wall_seconds, out),
+        _papers_table(records, straight, link,
+                      *(asset("straight-compose", f"composed_seed{straight[0].seed}{name}", f"straight{name}")
+                        if straight else None for name in (".mp4", "_goal_score.png"))),
         _table_one(records, composed, knocked, link),
         _composition(composed, asset("compose", f"composed_seed{composed[0].seed}.mp4", "composed.mp4")
                      if composed else None,
@@ -109,20 +114,59 @@ def _header(profile, records: dict[str, StageRecord], wall_seconds: float, out: 
         f"K = {profile.samples}, cameras at {profile.resolution} px (models see {profile.image_size} px)."])
 
 
-def _table_one(records, composed: list[ComposedEpisode], knocked: list[ComposedEpisode], link) -> str:
-    facts = records["table"].facts["rows"]  # kind -> column -> [successes, trials, safety stops]
-    rows = {kind: {c: Cell(*counts) for c, counts in row.items()} for kind, row in facts.items()}
-    lines = ["## Table I: each controller on each subtask", "",
-             "Each cell: ours, with the Wilson 95% interval; then the paper's. `*`: stopped for safety. `-`: not run. "
-             f"Start states, failures: [controllers.md]({link('table', 'controllers.md')}).", "",
-             "| controller | pick | move | insert | full task |", "|---|---|---|---|---|"]
-    lines += [table_row(kind, row) for kind, row in rows.items()]
+def _rows(record: StageRecord) -> dict[str, dict[str, Cell]]:
+    """A Table I stage's rows: kind -> column -> cell."""
+    return {kind: {c: Cell(*counts) for c, counts in row.items()}  # counts: successes, trials, safety stops
+            for kind, row in record.facts["rows"].items()}
+
+
+def _composed_row(composed: list[ComposedEpisode]) -> list[str]:
+    """Table I's composed row (the first 10 seeds, as the paper ran), and the rate over all seeds if more ran."""
     first = composed[:10]
-    lines.append(f"| composed (selector) | - | - | - | {rate(sum(e.success for e in first), len(first))}; "
-                 f"paper {PAPER_COMPOSED} |")
+    lines = [f"| composed (selector) | - | - | - | {rate(sum(e.success for e in first), len(first))}; "
+             f"paper {PAPER_COMPOSED} |"]
     if len(composed) > len(first):
         lines += ["", f"Composed over {len(composed)} seeds: {rate(sum(e.success for e in composed), len(composed))} "
                       "full-task successes (the paper runs 10)."]
+    return lines
+
+
+def _papers_table(records, composed: list[ComposedEpisode], link, video: str | None, figure: str | None) -> str:
+    """Table I as the paper got it: the MP and DMP insertions go straight down once, assuming a centred grasp."""
+    feel, straight = _rows(records["table"]), _rows(records["straight-table"])
+    rows = {kind: {**feel[kind], **{c: cell for c, cell in straight[kind].items() if cell.trials}}
+            for kind in straight}
+    rows.update({kind: row for kind, row in feel.items() if kind not in rows})
+    lines = ["## Table I, the paper's experiment: planned insertions that go straight down", "",
+             "The MP and DMP insertions line up for a centred grasp and go straight down once, as the paper's did "
+             "(`--insertion straight`); their dynamics models are trained on their own rollouts. Each cell: ours, "
+             "with the Wilson 95% interval; then the paper's. `*`: stopped for safety. Pick and move are the next "
+             f"table's (the insertion does not change them); failures: [controllers.md]"
+             f"({link('straight-table', 'controllers.md')}).", "",
+             "| controller | pick | move | insert | full task |", "|---|---|---|---|---|"]
+    lines += [table_row(kind, row) for kind, row in rows.items()]
+    lines += _composed_row(composed)
+    served = served_table(composed)
+    if served:
+        lines += ["", "Which controller served each subtask in the composed episodes (activations):", "", *served]
+    if figure:
+        lines += ["", f"![The goal score over composed trial {composed[0].seed}]({figure})", "",
+                  "The goal score over a composed trial (the paper's figure of a trial), coloured by the controller "
+                  "the selector ran."]
+    if video:
+        lines += ["", f'<video src="{video}" controls muted preload="metadata" width="512"></video>', "",
+                  f"[Composed rollout with the straight-down insertions, seed {composed[0].seed}]({video})."]
+    return "\n".join(lines)
+
+
+def _table_one(records, composed: list[ComposedEpisode], knocked: list[ComposedEpisode], link) -> str:
+    lines = ["## Table I beyond the paper: planned insertions that feel for the hole", "",
+             "The MP and DMP insertions try offsets around the hole until the gear goes down (the project's default). "
+             "Each cell: ours, with the Wilson 95% interval; then the paper's. `*`: stopped for safety. `-`: not run. "
+             f"Start states, failures: [controllers.md]({link('table', 'controllers.md')}).", "",
+             "| controller | pick | move | insert | full task |", "|---|---|---|---|---|"]
+    lines += [table_row(kind, row) for kind, row in _rows(records["table"]).items()]
+    lines += _composed_row(composed)
     completed = records["table"].facts.get("completed", {})
     lines += ["", "Progressive completion of the full task: how many trials got at least this far.", "",
               "| controller | progressive completion |", "|---|---|"]
@@ -149,6 +193,9 @@ def _composition(composed: list[ComposedEpisode], video: str | None, knock_video
     backed = back_offs(composed)
     if backed:
         lines += ["", backed]
+    served = served_table(composed)
+    if served:
+        lines += ["", "Which controller served each subtask (activations over all composed episodes):", "", *served]
     causes = failure_table(composed)
     if causes:
         lines += ["", "Failed composed episodes by cause:", "", *causes]
