@@ -29,7 +29,7 @@ from policy_composer.policies.cnn.train import (
 )
 from policy_composer.policies.lerobot_policy.controller import LeRobotPolicyController, lerobot_label
 from policy_composer.policies.subtasks import SUBTASKS
-from policy_composer.tasks.gear_expert import ExpertConfig, GearAssemblyExpert
+from policy_composer.tasks.gear_expert import GearAssemblyExpert
 from policy_composer.tasks.gear_kinematics import LeftArmIK
 
 TINY = dict(image_size=32, hidden_dim=64, num_mixtures=4, batch_size=16, epochs=30)
@@ -152,9 +152,9 @@ def follow_demonstration(env, model, seed: int) -> dict[str, np.ndarray]:
     command there (the change from its previous command, in the hand's frame, and the gripper), and the gear's
     offset from the peg."""
     u = env.unwrapped
-    options = load_recipe("gear-insertion-demos").reset_options()
-    obs, _ = env.reset(seed=seed, options=options)  # the demonstration's first recorded frame
-    expert = GearAssemblyExpert(env, ExpertConfig(teleop=True))  # the recipe's demonstrator
+    recipe = load_recipe("gear-insertion-demos")
+    obs, _ = env.reset(seed=seed, options=recipe.reset_options())  # the demonstration's first recorded frame
+    expert = GearAssemblyExpert(env, recipe.expert.config())  # the recipe's demonstrator, DART included
     expert.reset(seed)
     config, rows = model.config, {"predicted": [], "target": [], "gear_offset": []}
     prev = obs["extra"]["state"][:1].float()  # an episode's first previous command: the measured joints
@@ -166,7 +166,7 @@ def follow_demonstration(env, model, seed: int) -> dict[str, np.ndarray]:
         rows["predicted"].append(model.act(image, policy_state(state, config))[0].numpy())
         rows["target"].append(action_target(state, action[None].float(), prev, config.action_space)[0].numpy())
         prev = action[None].float()
-        obs, *_ = env.step(u.flat_to_dict_action(action))
+        obs, *_ = env.step(u.flat_to_dict_action(expert.executed))  # what the arm was sent
     return {k: np.stack(v) for k, v in rows.items()}
 
 

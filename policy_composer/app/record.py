@@ -141,7 +141,7 @@ class EpisodeRecorder:
     def __init__(self, recipe: Recipe, settings: EnvSettings, sources: LibrarySources,
                  controllers: tuple[str, ...]):
         from policy_composer.data.recorder import FrameBuffer
-        from policy_composer.tasks.gear_expert import ExpertConfig, GearAssemblyExpert
+        from policy_composer.tasks.gear_expert import GearAssemblyExpert
 
         # A resumed dataset keeps its cameras; a controller added to it may read more: rendered, not recorded.
         rendered = tuple(dict.fromkeys((*settings.cameras, *cameras_needed(controllers, sources))))
@@ -151,9 +151,7 @@ class EpisodeRecorder:
         if recipe.driver == "controllers":
             self.library = build_library(self.buffer, controllers, sources)
         else:
-            self.expert = GearAssemblyExpert(self.buffer, ExpertConfig(
-                grasp_offset=recipe.expert.grasp_offset_mm / 1000.0, teleop=recipe.expert.teleop,
-                arrival_error=recipe.expert.arrival_error_mm / 1000.0, noise=recipe.expert.noise_mm / 1000.0))
+            self.expert = GearAssemblyExpert(self.buffer, recipe.expert.config())
 
     def __call__(self, item: tuple[str | None, int]) -> RecordedEpisode | None:
         name, seed = item

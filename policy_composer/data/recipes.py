@@ -40,6 +40,13 @@ class ExpertSettings:
     gear_arrival_mm: float = 0.0
     noise_mm: float = 0.0  # DART: the executed TCP target's drifting offset (see ExpertConfig.noise)
 
+    def config(self):
+        """The scripted expert's ExpertConfig for these settings (the simulator loads only when it is asked for)."""
+        from policy_composer.tasks.gear_expert import ExpertConfig
+
+        return ExpertConfig(grasp_offset=self.grasp_offset_mm / 1000.0, teleop=self.teleop,
+                            arrival_error=self.arrival_error_mm / 1000.0, noise=self.noise_mm / 1000.0)
+
 
 @dataclass(frozen=True)
 class Recipe:
