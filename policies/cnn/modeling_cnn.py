@@ -30,6 +30,7 @@ class CNNPolicy(nn.Module):
         if config.offset_weight:  # the auxiliary head (see CNNPolicyConfig.offset_weight), unused when acting
             self.offset = nn.Linear(config.hidden_dim, 3)
             normalised.append(("offset", 3))
+        self.normalised = tuple(name for name, _ in normalised)  # what training sets the statistics of
         for name, dim in normalised:
             self.register_buffer(f"{name}_mean", torch.zeros(dim))
             self.register_buffer(f"{name}_std", torch.ones(dim))

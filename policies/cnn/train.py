@@ -87,10 +87,9 @@ def train_cnn_policy(root: str | Path, config: CNNPolicyConfig, out: str | Path 
     torch.manual_seed(config.seed)
     data = data if data is not None else load_demonstrations(root, config, progress=progress)
     model = CNNPolicy(config)
-    normalised = [("state", data["state"].float()), ("action", data["action"][:, :-1].float())]
-    if config.offset_weight:
-        normalised.append(("offset", data["offset"].float()))
-    for name, x in normalised:
+    quantities = {"state": data["state"], "action": data["action"][:, :-1], "offset": data.get("offset")}
+    for name in model.normalised:
+        x = quantities[name].float()
         getattr(model, f"{name}_mean").copy_(x.mean(0))
         getattr(model, f"{name}_std").copy_(x.std(0).clamp_min(1e-5))
     opt = adam(model, config)

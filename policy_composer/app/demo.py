@@ -20,6 +20,7 @@ from policy_composer.data.lock import one_writer
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 from policy_composer.selector.configuration import ComposeConfig
 from policy_composer.tasks.spec import CAMERA_NAMES as CAMERAS
+from policy_composer.tasks.spec import SUBTASK_COLUMNS
 
 # The controllers that `--insertion straight` changes: the paper's open-loop insertions.
 STRAIGHT = ("mp_insert", "dmp_insert")
@@ -303,12 +304,11 @@ def _evaluate_goal(out: Path, inputs: dict[str, Path]) -> dict:
 
 
 def _table(out: Path, inputs: dict[str, Path], p: Profile, kinds: tuple[str, ...], workers: int,
-           insertion: str = "feel", columns: tuple[str, ...] | None = None) -> dict:
+           insertion: str = "feel", columns: tuple[str, ...] = SUBTASK_COLUMNS) -> dict:
     from policy_composer.app.controller_table import evaluate_table, write_table
-    from policy_composer.tasks.spec import SUBTASK_COLUMNS
 
     rows = evaluate_table(list(kinds), _sources(inputs, insertion), p.table_trials, 0, p.resolution, workers=workers,
-                          columns=columns or SUBTASK_COLUMNS)
+                          columns=columns)
     write_table(rows, out)
     return {"workers": workers,
             "rows": {kind: {c: [cell.successes, cell.trials, cell.safety_stops] for c, cell in row.items()}

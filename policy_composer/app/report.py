@@ -154,9 +154,14 @@ def _papers_table(records, composed: list[ComposedEpisode], link, video: str | N
                   "The goal score over a composed trial (the paper's figure of a trial), coloured by the controller "
                   "the selector ran."]
     if video:
-        lines += ["", f'<video src="{video}" controls muted preload="metadata" width="512"></video>', "",
-                  f"[Composed rollout with the straight-down insertions, seed {composed[0].seed}]({video})."]
+        lines += _video(video, f"Composed rollout with the straight-down insertions, seed {composed[0].seed}", ".")
     return "\n".join(lines)
+
+
+def _video(src: str, title: str, after: str) -> list[str]:
+    """A video the report plays inline, with a link to it (for readers of the markdown) and `after` its title."""
+    return ["", f'<video src="{src}" controls muted preload="metadata" width="512"></video>', "",
+            f"[{title}]({src}){after}"]
 
 
 def _table_one(records, composed: list[ComposedEpisode], knocked: list[ComposedEpisode], link) -> str:
@@ -182,14 +187,12 @@ def _table_one(records, composed: list[ComposedEpisode], knocked: list[ComposedE
 
 
 def _composition(composed: list[ComposedEpisode], video: str | None, knock_video: str | None) -> str:
-    lines = ["## The selector composing the library", ""]
+    lines = ["## The selector composing the library"]
     if video:
-        lines += [f'<video src="{video}" controls muted preload="metadata" width="512"></video>', "",
-                  f"[Composed rollout, seed {composed[0].seed}]({video}): the selector's camera (the world model's), "
-                  "the running controller and the goal score of the current image."]
+        lines += _video(video, f"Composed rollout, seed {composed[0].seed}", ": the selector's camera (the world "
+                        "model's), the running controller and the goal score of the current image.")
     if knock_video:
-        lines += ["", f'<video src="{knock_video}" controls muted preload="metadata" width="512"></video>', "",
-                  f"[The gear knocked out at step 100]({knock_video}): the selector picks a pick-up again."]
+        lines += _video(knock_video, "The gear knocked out at step 100", ": the selector picks a pick-up again.")
     backed = back_offs(composed)
     if backed:
         lines += ["", backed]
