@@ -156,6 +156,12 @@ class LeftArmController(Controller):
     def done(self, obs=None) -> bool:
         return self.outcome is not Outcome.RUNNING
 
+    @property
+    def backing_off(self) -> str:
+        """Why the subtask's guard has taken over, the commands being its back-off's ("" while they are the
+        controller's own)."""
+        return self._back_off_reason if self._back_off is not None else ""
+
     def _guarded_command(self, obs) -> tuple[np.ndarray, float] | None:
         """The next command, unless the subtask says to stop here (a release it would not survive, or the gear led
         off its course): then the back-off's next one."""

@@ -12,9 +12,11 @@ from conftest import run_cli
 from transforms3d.quaternions import quat2mat
 
 from policy_composer.app.controller_table import start_state
-from policy_composer.data.features import read_sidecar
+from policy_composer.app.record import record_recipe
+from policy_composer.data.features import open_dataset, read_sidecar
 from policy_composer.data.frames import load_frames, to_model_image
 from policy_composer.data.recipes import RecipeError, load_recipe
+from policy_composer.data.recorder import FrameBuffer
 from policy_composer.policies.arm import np0
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 from policy_composer.policies.cnn.controller import CNNController, hand_step
@@ -28,9 +30,11 @@ from policy_composer.policies.cnn.train import (
     train_cnn_policy,
 )
 from policy_composer.policies.lerobot_policy.controller import LeRobotPolicyController, lerobot_label
+from policy_composer.policies.library import LibrarySources
 from policy_composer.policies.subtasks import SUBTASKS
 from policy_composer.tasks.gear_expert import GearAssemblyExpert
 from policy_composer.tasks.gear_kinematics import LeftArmIK
+from policy_composer.tasks.spec import EnvSettings
 
 TINY = dict(image_size=32, hidden_dim=64, num_mixtures=4, batch_size=16, epochs=30)
 
@@ -123,6 +127,39 @@ def test_pick_and_move_policies_learn_their_stages_of_the_transport_demos(transp
         load_demonstrations(transport_demos, CNNPolicyConfig(**TINY), progress=False)
     with pytest.raises(CheckpointError, match="train them with `policy-composer train policy --subtask SUBTASK`"):
         load_cnn_library(tmp_path)
+
+
+def test_a_dagger_round_records_the_experts_labels_along_the_policys_own_path(insertion_demos, tmp_path,
+                                                                              monkeypatch):
+    """DAgger: the CNN policy drives the arm, the scripted expert labels each frame, the LeRobot dataset holds the
+    labels (failures included), and the policy trains on it beside its demonstrations."""
+    config = CNNPolicyConfig(**{**TINY, "max_steps": 12})
+    train_cnn_policy(insertion_demos, config, out=tmp_path / "cnn" / "insert", progress=False)
+    labels, sent, stepped = [], [], []
+    label, act, step = GearAssemblyExpert.act, CNNController.act, FrameBuffer.step
+    monkeypatch.setattr(GearAssemblyExpert, "act", lambda self, obs=None: labels.append(label(self, obs)) or labels[-1])
+    monkeypatch.setattr(CNNController, "act", lambda self, obs: sent.append(act(self, obs)) or sent[-1])
+
+    def logged(self, action, label=None):
+        # Each step sends the policy's latest command and records the expert's latest label.
+        stepped.append((action is sent[-1] and label is labels[-1], action.numpy(), label.numpy()))
+        return step(self, action, label)
+
+    monkeypatch.setattr(FrameBuffer, "step", logged)
+    sources = LibrarySources(models={"cnn": str(tmp_path / "cnn")})
+    root = tmp_path / "dagger"
+    sidecar = record_recipe(load_recipe("gear-insertion-dagger"), root, episodes=2, seed=3,
+                            settings=EnvSettings(resolution=32), sources=sources, progress=False)
+    assert len(sidecar["episodes"]) == 2 and sidecar["controllers"] == ["cnn_insert"]
+    assert all(e["outcome"] in ("done", "failed") for e in sidecar["episodes"])  # kept whatever the outcome
+    ds = open_dataset(root)
+    assert [e["length"] for e in sidecar["episodes"]] == np.bincount(ds.hf_dataset["episode_index"]).tolist()
+    matched, executed, recorded = zip(*stepped)
+    assert all(matched) and len(stepped) == len(ds)
+    np.testing.assert_array_equal(np.stack(ds.hf_dataset["action"]), np.stack(recorded))
+    assert np.abs(np.stack(executed)[:, :7] - np.stack(recorded)[:, :7]).max() > 1e-3  # the arm followed the policy
+    data = load_demonstrations([insertion_demos, root], config, progress=False)
+    assert len(data["image"]) == len(load_demonstrations(insertion_demos, config, progress=False)["image"]) + len(ds)
 
 
 def test_a_policy_pushing_against_the_table_keeps_its_command_near_the_hand(rgb_env):

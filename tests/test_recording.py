@@ -204,8 +204,8 @@ def test_bad_input_is_named(insertion_demos, tmp_path):
     env.close()
     with pytest.raises(RecipeError, match="known recipes"):
         load_recipe("gear-nothing")
-    assert available_recipes() == ["gear-controller-rollouts", "gear-full-task-demos", "gear-insertion-demos",
-                                   "gear-transport-demos"]
+    assert available_recipes() == ["gear-controller-rollouts", "gear-full-task-demos", "gear-insertion-dagger",
+                                   "gear-insertion-demos", "gear-transport-demos"]
     assert load_recipe("gear-full-task-demos").splits(8) == {"train": [0, 1, 2, 3, 4], "heldout": [5, 6, 7]}
     rollouts = load_recipe("gear-controller-rollouts")
     assert rollouts.cameras == ("head", "left_forearm")
@@ -224,6 +224,8 @@ def test_bad_input_is_named(insertion_demos, tmp_path):
         replace(rollouts, goal="gear_seated")
     with pytest.raises(RecipeError, match="must be phases of the expert"):
         replace(rollouts, record_phases=("insert", "wave"))
+    with pytest.raises(RecipeError, match="the dagger driver runs one controller"):
+        replace(load_recipe("gear-insertion-dagger"), controllers=("cnn_insert", "mp_insert"))
 
 
 def test_controller_rollouts_name_their_controller(controller_rollouts):

@@ -27,6 +27,9 @@ ACTION_SPACES = {"hand": 4, "joint": 8}
 # so it learns where the carry ends, not only where the pre-insertion pose's tolerance begins.
 DEMONSTRATIONS = {"pick": ("gear-transport-demos", (0,)), "move": ("gear-transport-demos", (1, 2)),
                   "insert": ("gear-insertion-demos", None)}
+# The recipe of a subtask's corrections: the policy's own rollouts labelled by the scripted expert (DAgger), which it
+# may train on beside its demonstrations.
+CORRECTIONS = {"insert": "gear-insertion-dagger"}
 
 
 @register_kind("cnn", label="CNN", subtasks=tuple(DEMONSTRATIONS), trained=True)

@@ -9,6 +9,7 @@ statistics with the config as JSON beside it; the library's CNN model is a folde
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +20,7 @@ from policy_composer.data.frames import load_frames, random_shift
 from policy_composer.data.recipes import check_recipe
 from policy_composer.learning.checkpoint import CheckpointError, load_checkpoint, load_config, save_checkpoint
 from policy_composer.learning.training import adam, fit_epochs
-from policy_composer.policies.cnn.configuration_cnn import DEMONSTRATIONS, PROPRIOCEPTION, CNNPolicyConfig
+from policy_composer.policies.cnn.configuration_cnn import CORRECTIONS, DEMONSTRATIONS, PROPRIOCEPTION, CNNPolicyConfig
 from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
 from policy_composer.tasks.gear_kinematics import PandaForwardKinematics
 
@@ -55,12 +56,16 @@ def action_target(state16: torch.Tensor, action16: torch.Tensor, prev16: torch.T
     return torch.cat([torch.as_tensor(in_hand, dtype=torch.float32), gripper], dim=-1)
 
 
-def load_demonstrations(root: str | Path, config: CNNPolicyConfig, episodes: list[int] | None = None,
-                        progress: bool = True) -> dict[str, torch.Tensor]:
-    """A dataset in memory as the policy trains on it: the frames of the policy's subtask (see DEMONSTRATIONS), as
-    images (N, 3, S, S) uint8, arm state (N, state_dim) and action target (N, action_dim)."""
+def load_demonstrations(root: str | Path | Sequence[str | Path], config: CNNPolicyConfig,
+                        episodes: list[int] | None = None, progress: bool = True) -> dict[str, torch.Tensor]:
+    """A dataset (or several, one after the other) in memory as the policy trains on it: the frames of the policy's
+    subtask (see DEMONSTRATIONS), as images (N, 3, S, S) uint8, arm state (N, state_dim) and action target
+    (N, action_dim)."""
+    if not isinstance(root, (str, Path)):
+        parts = [load_demonstrations(r, config, episodes, progress) for r in root]
+        return {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
     recipe, stages = DEMONSTRATIONS[config.subtask]
-    check_recipe(root, recipe, f"the CNN {config.subtask} policy")
+    check_recipe(root, (recipe, *filter(None, [CORRECTIONS.get(config.subtask)])), f"the CNN {config.subtask} policy")
     required = {"observation.state": (16,), "action": (16,), "stage": (1,)}
     if config.offset_weight:
         required["gear_offset"] = (3,)
@@ -79,7 +84,7 @@ def load_demonstrations(root: str | Path, config: CNNPolicyConfig, episodes: lis
     return data
 
 
-def train_cnn_policy(root: str | Path, config: CNNPolicyConfig, out: str | Path | None = None,
+def train_cnn_policy(root: str | Path | Sequence[str | Path], config: CNNPolicyConfig, out: str | Path | None = None,
                      progress: bool = True,
                      data: dict[str, torch.Tensor] | None = None) -> tuple[CNNPolicy, list[float]]:
     """Fit the policy by maximum likelihood of the demonstrated actions; returns it and the loss per epoch."""
@@ -107,7 +112,9 @@ def train_cnn_policy(root: str | Path, config: CNNPolicyConfig, out: str | Path 
     losses = fit_epochs(model, opt, n, config.batch_size, config.epochs, batch_loss, gen, "training cnn policy",
                         progress, schedule=schedule, postfix="nll")
     if out is not None:
-        log = {"dataset": str(root), "frames": n, "losses": losses, "seconds": round(time.perf_counter() - t0, 1)}
+        roots = [str(root)] if isinstance(root, (str, Path)) else [str(r) for r in root]
+        log = {"dataset": roots[0] if len(roots) == 1 else roots, "frames": n, "losses": losses,
+               "seconds": round(time.perf_counter() - t0, 1)}
         save_cnn_policy(model, out, log)
     return model, losses
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import shutil
 import time
 from dataclasses import asdict, dataclass, replace
+from functools import partial
 from pathlib import Path
 
 from policy_composer.app.pipeline import Stage, StageRecord, run_stages
@@ -24,6 +25,9 @@ from policy_composer.tasks.spec import SUBTASK_COLUMNS
 
 # The controllers that `--insertion straight` changes: the paper's open-loop insertions.
 STRAIGHT = ("mp_insert", "dmp_insert")
+# The first seed of the CNN insertion's DAgger rollouts: clear of the seeds the job's tables and compositions run
+# (and of the replacements Table I draws, seed + 1000 k).
+DAGGER_SEED = 80000
 
 
 @dataclass(frozen=True)
@@ -38,6 +42,9 @@ class Profile:
     dmp_episodes: int  # planner episodes the DMPs are fitted to
     rollouts: int  # per controller, for its dynamics model
     cnn_epochs: int  # paper: 200
+    dagger_episodes: int  # the CNN insertion's own rollouts labelled by the expert (DAgger), which it trains on again
+    dagger_epochs: int  # that training, on the demonstrations and the labelled rollouts together
+    dagger_rounds: int  # each records the last policy's rollouts and trains it again
     vae_epochs: int
     dynamics_epochs: int
     goal_epochs: int
@@ -58,8 +65,8 @@ class Profile:
 
 PROFILES = {
     "quick": Profile("quick", resolution=64, image_size=64, insertion_demos=20, transport_demos=20,
-                     full_task_demos=7, train_demos=5, dmp_episodes=5, rollouts=4, cnn_epochs=80, vae_epochs=15,
-                     dynamics_epochs=30, goal_epochs=30,
+                     full_task_demos=7, train_demos=5, dmp_episodes=5, rollouts=4, cnn_epochs=80, dagger_episodes=20,
+                     dagger_epochs=50, dagger_rounds=1, vae_epochs=15, dynamics_epochs=30, goal_epochs=30,
                      table_trials=3, compose_episodes=10, knockout_episodes=3, mdp_episodes_19=1000,
                      mdp_episodes_100=30,
                      holds="The MDP experiments, the MP row of Table I and the goal-score comparison between cameras "
@@ -73,16 +80,17 @@ PROFILES = {
                      elsewhere="the composed row on 100 held-out seeds, and recovery from 20 knock-outs, with the "
                                "models of an earlier run of this profile (measured 2026-12-02)"),
     "paper": Profile("paper", resolution=128, image_size=64, insertion_demos=50, transport_demos=50,
-                     full_task_demos=8, train_demos=5, dmp_episodes=5, rollouts=20, cnn_epochs=200, vae_epochs=30,
-                     dynamics_epochs=60, goal_epochs=60,
+                     full_task_demos=8, train_demos=5, dmp_episodes=5, rollouts=20, cnn_epochs=200,
+                     dagger_episodes=50, dagger_epochs=120, dagger_rounds=2,
+                     vae_epochs=30, dynamics_epochs=60, goal_epochs=60,
                      table_trials=10, compose_episodes=50, knockout_episodes=10, mdp_episodes_19=1000,
                      mdp_episodes_100=100,
                      holds="The paper's sizes: 50 insertion demonstrations (and 50 of the pick-up and carry), 5 "
                            "full-task demonstrations, 200 epochs, 24 mixtures, n = 10, 10 trials per Table I cell, "
                            "and 50 composed seeds."),
     "smoke": Profile("smoke", resolution=32, image_size=32, insertion_demos=1, transport_demos=1,
-                     full_task_demos=2, train_demos=1, dmp_episodes=1, rollouts=1, cnn_epochs=2, vae_epochs=2,
-                     dynamics_epochs=2, goal_epochs=2,
+                     full_task_demos=2, train_demos=1, dmp_episodes=1, rollouts=1, cnn_epochs=2, dagger_episodes=1,
+                     dagger_epochs=2, dagger_rounds=1, vae_epochs=2, dynamics_epochs=2, goal_epochs=2,
                      table_trials=1, compose_episodes=1, knockout_episodes=1, mdp_episodes_19=20, mdp_episodes_100=2,
                      mdp_levels=(0.0, 0.4, 0.8), mixtures=4, horizon=3, samples=4, cnn_max_steps=30,
                      compose_max_steps=250,
@@ -102,12 +110,14 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
     from policy_composer.tasks.gear_assembly import TASK_REVISION
 
     insertion = load_recipe("gear-insertion-demos")
+    dagger = load_recipe("gear-insertion-dagger")
     transport = load_recipe("gear-transport-demos")
     full_task = replace(load_recipe("gear-full-task-demos"), train_episodes=p.train_demos)
     rollouts = load_recipe("gear-controller-rollouts")
     straight_rollouts = replace(rollouts, controllers=STRAIGHT)
     cnn = {s: CNNPolicyConfig(subtask=s, epochs=p.cnn_epochs, num_mixtures=p.mixtures, image_size=p.image_size,
                               max_steps=p.cnn_max_steps) for s in ("pick", "move", "insert")}
+    dagger_cnn = replace(cnn["insert"], epochs=p.dagger_epochs)
     vae = VAEConfig(epochs=p.vae_epochs, image_size=p.image_size)
     dynamics = DynamicsConfig(epochs=p.dynamics_epochs)
     goal = GoalScoreConfig(epochs=p.goal_epochs, num_mixtures=p.mixtures, image_size=p.image_size)
@@ -136,9 +146,10 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
         Stage("dmp", f"fit the DMPs to the motion planner's episodes ({p.dmp_episodes})",
               {"episodes": p.dmp_episodes, **env},
               lambda out, _: _fit_dmp(out, p.dmp_episodes)),
-        Stage("cnn", f"train the CNN policies: pick, move, insert ({p.cnn_epochs} epochs)",
-              {s: asdict(c) for s, c in cnn.items()},
+        Stage("bc-cnn", f"train the CNN policies on the demonstrations: pick, move, insert ({p.cnn_epochs} "
+              "epochs)", {s: asdict(c) for s, c in cnn.items()},
               lambda out, i: _train_cnn(out, i, cnn), inputs=("insertion-demos", "transport-demos")),
+        *_dagger_rounds(p, dagger, record(dagger, p.dagger_episodes), dagger_cnn, workers),
         Stage("controller-rollouts", f"record rollouts of each controller ({p.rollouts} each)",
               {**record(rollouts, p.rollouts), **library},
               lambda out, i: _record(rollouts, out, p.rollouts, p.resolution, workers, _sources(i)),
@@ -207,7 +218,34 @@ def run_demo(profile: str = "quick", out: str | Path = "results",
     return records, report
 
 
-def _record(recipe, out: Path, episodes: int, resolution: int, workers: int, sources=None) -> dict:
+def _dagger_rounds(p: Profile, recipe, key: dict, config: CNNPolicyConfig, workers: int) -> list[Stage]:
+    """DAgger for the CNN insertion, `p.dagger_rounds` times: record the last policy's rollouts labelled by the expert
+    (`insertion-dagger-K`), then train the insertion anew on its demonstrations and every round's rollouts. The last
+    round's model is stage `cnn`, the library's."""
+    stages, policy, rollouts = [], "bc-cnn", ()
+    for k in range(1, p.dagger_rounds + 1):
+        seed, name = DAGGER_SEED + 1000 * (k - 1), f"insertion-dagger-{k}"
+        rollouts += (name,)
+        trained = "cnn" if k == p.dagger_rounds else f"dagger-cnn-{k}"
+        stages += [
+            Stage(name, f"record the CNN insertion's rollouts labelled by the expert (DAgger round {k}, "
+                  f"{p.dagger_episodes})", {**key, "seed": seed},
+                  partial(_dagger_record, recipe, p, workers, policy, seed), inputs=(policy,), resumable=True,
+                  verify=_verify_dataset),
+            Stage(trained, f"train the CNN insertion on its demonstrations and {k} round(s) of the expert's "
+                  f"corrections ({p.dagger_epochs} epochs)", asdict(config),
+                  partial(_train_dagger, config=config, policy=policy, rollouts=rollouts),
+                  inputs=(policy, "insertion-demos", *rollouts))]
+        policy = trained
+    return stages
+
+
+def _dagger_record(recipe, p: Profile, workers: int, policy: str, seed: int, out: Path,
+                   inputs: dict[str, Path]) -> dict:
+    return _record(recipe, out, p.dagger_episodes, p.resolution, workers, _sources(inputs, cnn=policy), seed)
+
+
+def _record(recipe, out: Path, episodes: int, resolution: int, workers: int, sources=None, seed: int = 0) -> dict:
     from policy_composer.app.record import record_recipe
     from policy_composer.data.catalog import summarize
     from policy_composer.tasks.spec import EnvSettings
@@ -216,8 +254,8 @@ def _record(recipe, out: Path, episodes: int, resolution: int, workers: int, sou
     resume = (root / "meta" / "info.json").exists()
     if root.exists() and not resume:  # interrupted before its first episode was saved
         shutil.rmtree(root)
-    record_recipe(recipe, root, episodes=episodes, resume=resume, settings=EnvSettings(resolution=resolution),
-                  sources=sources, workers=workers)
+    record_recipe(recipe, root, episodes=episodes, seed=None if resume else seed, resume=resume,
+                  settings=EnvSettings(resolution=resolution), sources=sources, workers=workers)
     s = summarize(root)
     return {"episodes": s["episodes"], "frames": s["frames"], "outcomes": s["outcomes"], "workers": workers}
 
@@ -230,11 +268,14 @@ def _verify_dataset(out: Path) -> None:
         verify_dataset(out / "dataset")
 
 
-def _sources(inputs: dict[str, Path], insertion: str = "feel"):
+def _sources(inputs: dict[str, Path], insertion: str = "feel", cnn: str = "cnn"):
+    """The library's models from the stages' outputs: the DMPs, and the CNN policies of stage `cnn`."""
     from policy_composer.policies.library import LibrarySources
 
-    return LibrarySources(models={"dmp": str(inputs["dmp"] / "dmp"), "cnn": str(inputs["cnn"] / "cnn")},
-                          insertion=insertion)
+    models = {"cnn": str(inputs[cnn] / "cnn")}
+    if "dmp" in inputs:
+        models["dmp"] = str(inputs["dmp"] / "dmp")
+    return LibrarySources(models=models, insertion=insertion)
 
 
 def _fit_dmp(out: Path, episodes: int) -> dict:
@@ -265,6 +306,25 @@ def _train_cnn(out: Path, inputs: dict[str, Path], configs: dict) -> dict:
         _, losses = train_cnn_policy(demos, config, out=out / "cnn" / subtask)
         timings[f"CNN {subtask} policy"], nll[subtask] = time.perf_counter() - t0, [losses[0], losses[-1]]
     return {"timings": timings, "nll": nll}
+
+
+def _train_dagger(out: Path, inputs: dict[str, Path], config: CNNPolicyConfig, policy: str,
+                  rollouts: tuple[str, ...]) -> dict:
+    """A CNN model: the pick-up and move policies of stage `policy`, and the insertion trained anew on its
+    demonstrations and the labelled rollouts of stages `rollouts`."""
+    import torch
+
+    from policy_composer.policies.cnn.train import train_cnn_policy
+
+    torch.set_num_threads(2)
+    if (out / "cnn").exists():
+        shutil.rmtree(out / "cnn")
+    shutil.copytree(inputs[policy] / "cnn", out / "cnn", ignore=shutil.ignore_patterns("insert"))
+    t0 = time.perf_counter()
+    datasets = [inputs[name] / "dataset" for name in ("insertion-demos", *rollouts)]
+    _, losses = train_cnn_policy(datasets, config, out=out / "cnn" / "insert")
+    seconds = time.perf_counter() - t0
+    return {"timings": {"CNN insert policy, DAgger": seconds}, "nll": {"insert": [losses[0], losses[-1]]}}
 
 
 def _train_world(out: Path, inputs: dict[str, Path], vae, dynamics, goal) -> dict:

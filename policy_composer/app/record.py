@@ -34,8 +34,8 @@ class RecordedEpisode:
 
 
 def recipe_controllers(recipe: Recipe) -> tuple[str, ...]:
-    """The controllers a "controllers" recipe runs: the ones it names, or every registered kind's."""
-    return (recipe.controllers or all_names()) if recipe.driver == "controllers" else ()
+    """The controllers a recipe runs: the ones it names, or for the "controllers" driver every registered kind's."""
+    return (recipe.controllers or all_names()) if recipe.driver == "controllers" else recipe.controllers
 
 
 def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None, seed: int | None = None,
@@ -148,14 +148,16 @@ class EpisodeRecorder:
         self.buffer = FrameBuffer(make_env("rgb", settings.resolution, settings.clearance_mm, rendered),
                                   settings.cameras)
         self.recipe = recipe
-        if recipe.driver == "controllers":
+        if recipe.driver != "expert":
             self.library = build_library(self.buffer, controllers, sources)
-        else:
+        if recipe.driver != "controllers":
             self.expert = GearAssemblyExpert(self.buffer, recipe.expert.config())
 
     def __call__(self, item: tuple[str | None, int]) -> RecordedEpisode | None:
         name, seed = item
-        return self._controller(self.library[name], seed) if name else self._expert(seed)
+        if name:
+            return self._controller(self.library[name], seed)
+        return self._dagger(seed) if self.recipe.driver == "dagger" else self._expert(seed)
 
     def close(self) -> None:
         self.buffer.close()
@@ -183,6 +185,34 @@ class EpisodeRecorder:
             return None
         return RecordedEpisode(seed, buffer.take_episode(), success,
                                {"grasp_offset_mm": round(expert.grasp_offset * 1000, 3)})
+
+    def _dagger(self, seed: int) -> RecordedEpisode | None:
+        """The recipe's controller acting from the expert's start state, each frame labelled with the command the
+        scripted expert gives in that state. The episode ends where the activation does, with the frame it ended in
+        (where the policy's command collided, say); a back-off is left out after its first step, since the
+        controller does not choose it (its guard does)."""
+        from policy_composer.tasks.rollout import episode_limit
+
+        recipe, buffer, expert = self.recipe, self.buffer, self.expert
+        controller = self.library[recipe.controllers[0]]
+        obs, _ = buffer.reset(seed=seed, options=recipe.reset_options())
+        if not controller.can_start(obs):  # a start outside its initiation set, which no selector would run it from
+            return None
+        expert.reset(seed)
+        controller.start(obs, seed=seed)
+        buffer.controller = controller.name
+        for _ in range(episode_limit(buffer)):
+            label = expert.act(obs)
+            obs, *_ = buffer.step(controller.act(obs), label=label)
+            if controller.done(obs) or controller.backing_off or expert.done:
+                break
+        outcome = "failed" if controller.backing_off else controller.outcome.value
+        if buffer.buffered_frames == 0 or (recipe.keep == "success" and outcome != "done"):
+            buffer.discard_episode()
+            return None
+        return RecordedEpisode(seed, buffer.take_episode(), outcome == "done",
+                               {"outcome": outcome, "reason": controller.backing_off or controller.reason,
+                                "grasp_offset_mm": round(expert.grasp_offset * 1000, 3)})
 
     def _controller(self, controller, seed: int) -> RecordedEpisode | None:
         """One activation of `controller` from a start state inside its initiation set (the open-loop expert run,

@@ -11,7 +11,7 @@ from policy_composer.data.features import read_info, read_sidecar
 from policy_composer.tasks.spec import CAMERA_NAMES, EXPERT_PHASES, GOAL_FLAGS, START_STATES
 
 RECIPE_DIR = Path(__file__).resolve().parents[2] / "datasets" / "recipes"
-DRIVERS = ("expert", "controllers")
+DRIVERS = ("expert", "controllers", "dagger")
 
 
 class RecipeError(ValueError):
@@ -54,7 +54,9 @@ class Recipe:
     description: str
     task: str  # LeRobot's per-frame task string
     episodes: int  # default number of episodes (per controller for the "controllers" driver)
-    driver: str  # "expert": the scripted expert; "controllers": each controller of the library
+    # "expert": the scripted expert; "controllers": each controller of the library; "dagger": one controller of the
+    # library acts from the expert's start states while the expert labels every frame (DAgger, Ross et al. 2011)
+    driver: str
     record_phases: tuple[str, ...] = ()  # expert phases to record; empty: the whole episode
     # The flag of GearAssemblyEnv.evaluate() an episode must end with to succeed. The expert's episodes end once it
     # has left the last of `record_phases`, so a recipe of the first subtasks simulates nothing after them.
@@ -62,7 +64,8 @@ class Recipe:
     start: str = "table"  # "expert" driver: where episodes start (GearAssembly-v1's START_STATES)
     keep: str = "success"  # "success": failed episodes are dropped and another seed is tried; "all"
     train_episodes: int | None = None  # episodes [0, train_episodes) train, the rest are held out
-    controllers: tuple[str, ...] = ()  # "controllers" driver: which to run (empty: every registered controller)
+    # "controllers" driver: which to run (empty: every registered controller); "dagger": the one that acts
+    controllers: tuple[str, ...] = ()
     cameras: tuple[str, ...] = CAMERA_NAMES  # cameras to render and record
     expert: ExpertSettings = field(default_factory=ExpertSettings)
 
@@ -77,6 +80,9 @@ class Recipe:
         check_plain_name(self.name, "recipe")
         if self.driver not in DRIVERS:
             raise RecipeError(f"recipe {self.name}: driver {self.driver!r} is not one of {DRIVERS}")
+        if self.driver == "dagger" and len(self.controllers) != 1:
+            raise RecipeError(f"recipe {self.name}: the dagger driver runs one controller (controllers = [\"NAME\"]), "
+                              f"not {list(self.controllers)}")
         if set(self.cameras) - set(CAMERA_NAMES) or not self.cameras:
             raise RecipeError(f"recipe {self.name}: cameras {list(self.cameras)} must be a non-empty subset of "
                               f"{list(CAMERA_NAMES)}")
@@ -97,14 +103,15 @@ class Recipe:
         return {"train": list(range(n)), "heldout": list(range(n, num_episodes))}
 
 
-def check_recipe(root: str | Path, expected: str, purpose: str) -> None:
-    """Refuse a dataset whose metadata names another of the project's recipes than the one `purpose` needs. A
-    dataset of a recipe of the user's own (a name the project does not have) is taken as it is."""
+def check_recipe(root: str | Path, expected: str | tuple[str, ...], purpose: str) -> None:
+    """Refuse a dataset whose metadata names another of the project's recipes than the one (or ones) `purpose`
+    needs. A dataset of a recipe of the user's own (a name the project does not have) is taken as it is."""
     read_info(root)  # first, that it is a dataset at all
     recipe = read_sidecar(root).get("recipe")
-    if recipe != expected and recipe in available_recipes():
-        raise RecipeError(f"{root} holds {recipe} episodes, but training {purpose} needs {expected}: pass a "
-                          f"{expected} dataset (record one with `policy-composer record {expected}`)")
+    expected = (expected,) if isinstance(expected, str) else expected
+    if recipe not in expected and recipe in available_recipes():
+        raise RecipeError(f"{root} holds {recipe} episodes, but training {purpose} needs {' or '.join(expected)}: "
+                          f"pass a {expected[0]} dataset (record one with `policy-composer record {expected[0]}`)")
 
 
 def available_recipes() -> list[str]:

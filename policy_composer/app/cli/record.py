@@ -9,6 +9,7 @@ from pathlib import Path
 from policy_composer.app.arguments import at_least
 from policy_composer.app.cli.options import env_options, library_sources, model_options, workers_option
 from policy_composer.app.workers import usable_cores
+from policy_composer.data.recipes import available_recipes
 from policy_composer.tasks.spec import EnvSettings
 
 
@@ -26,7 +27,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     if args.controllers:
         chosen = tuple(args.controllers.split(","))
         known = (*recipe_controllers(recipe), *(s.controller_name for s in sources.lerobot))
-        if recipe.driver != "controllers" or set(chosen) - set(known):
+        if recipe.driver == "expert" or set(chosen) - set(known) or (recipe.driver == "dagger" and len(chosen) > 1):
             raise RecipeError(f"--controllers must name controllers of recipe {recipe.name} or --lerobot ones "
                               f"({', '.join(known) or 'it runs none'}), not {', '.join(chosen)}")
         recipe = replace(recipe, controllers=chosen)
@@ -47,8 +48,7 @@ def cmd_record(args: argparse.Namespace) -> int:
 
 def add_commands(sub) -> None:
     record = sub.add_parser("record", help="record a dataset recipe (datasets/recipes/) into a LeRobotDataset")
-    record.add_argument("recipe", help="recipe name (gear-insertion-demos, gear-full-task-demos, "
-                                       "gear-controller-rollouts) or path of a .toml recipe")
+    record.add_argument("recipe", help=f"recipe name ({', '.join(available_recipes())}) or path of a .toml recipe")
     record.add_argument("--episodes", type=at_least(1), default=None,
                         help="episodes the dataset should hold (default: the recipe's)")
     record.add_argument("--root", default=None, help="dataset folder (default: datasets/RECIPE)")
@@ -56,8 +56,8 @@ def add_commands(sub) -> None:
     env_options(record, grasp=False)
     record.set_defaults(resolution=None, clearance=None, seed=None)  # not given: the defaults, or the resumed dataset's
     record.add_argument("--controllers", default=None,
-                        help="comma-separated subset of the recipe's controllers to record "
-                             "(recipes that run the controllers)")
+                        help="comma-separated subset of the recipe's controllers to record (recipes that run "
+                             "the controllers), or the one a dagger recipe runs (say, a --lerobot one)")
     model_options(record)
     workers_option(record)
     record.set_defaults(func=cmd_record)

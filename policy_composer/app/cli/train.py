@@ -21,7 +21,7 @@ def cmd_train_policy(args: argparse.Namespace) -> int:
 
     training_threads(args.threads)
     config = config_from(args, CNNPolicyConfig)
-    dataset = args.dataset or dataset_path(DEMONSTRATIONS[config.subtask][0])
+    dataset = args.dataset or [dataset_path(DEMONSTRATIONS[config.subtask][0])]
     out = args.out or str(MODELS / "cnn" / config.subtask)
     t0 = time.time()
     _, losses = train_cnn_policy(dataset, config, out=out)
@@ -72,8 +72,9 @@ def add_commands(sub) -> None:
     train = sub.add_parser("train", help="train the library's learned controllers")
     tr_sub = train.add_subparsers(dest="what", required=True)
     tr_policy = tr_sub.add_parser("policy", help="behaviour-clone a CNN + MDN policy (cnn_pick, cnn_move, cnn_insert)")
-    tr_policy.add_argument("--dataset", help="its demonstrations (default: datasets/gear-insertion-demos for the "
-                           "insertion, datasets/gear-transport-demos for the pick-up and the move)")
+    tr_policy.add_argument("--dataset", nargs="+", help="its demonstrations (default: datasets/gear-insertion-demos "
+                           "for the insertion, datasets/gear-transport-demos for the pick-up and the move), and any "
+                           "corrections of its own rollouts (for the insertion: gear-insertion-dagger)")
     add_config_options(tr_policy, CNNPolicyConfig, {
         "subtask": "subtask", "camera": "camera", "view": "view", "backbone": "backbone", "epochs": "epochs",
         "image_size": "image-size", "num_mixtures": "mixtures", "action_space": "action-space",
