@@ -65,7 +65,8 @@ def load_demonstrations(root: str | Path | Sequence[str | Path], config: CNNPoli
         parts = [load_demonstrations(r, config, episodes, progress) for r in root]
         return {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
     recipe, stages = DEMONSTRATIONS[config.subtask]
-    check_recipe(root, (recipe, *filter(None, [CORRECTIONS.get(config.subtask)])), f"the CNN {config.subtask} policy")
+    accepted = tuple(filter(None, (recipe, CORRECTIONS.get(config.subtask))))
+    check_recipe(root, accepted, f"the CNN {config.subtask} policy")
     required = {"observation.state": (16,), "action": (16,), "stage": (1,)}
     if config.offset_weight:
         required["gear_offset"] = (3,)

@@ -57,7 +57,7 @@ def add_commands(sub) -> None:
     record.set_defaults(resolution=None, clearance=None, seed=None)  # not given: the defaults, or the resumed dataset's
     record.add_argument("--controllers", default=None,
                         help="comma-separated subset of the recipe's controllers to record (recipes that run "
-                             "the controllers), or the one a dagger recipe runs (say, a --lerobot one)")
+                             "the controllers), or the one a dagger recipe runs")
     model_options(record)
     workers_option(record)
     record.set_defaults(func=cmd_record)
