@@ -28,6 +28,7 @@ STRAIGHT = ("mp_insert", "dmp_insert")
 # The first seed of the CNN insertion's DAgger rollouts: clear of the seeds the job's tables and compositions run
 # (and of the replacements Table I draws, seed + 1000 k).
 DAGGER_SEED = 80000
+BC_STAGE = "bc-cnn"  # the CNN policies behaviour-cloned on their demonstrations, where DAgger rounds follow
 
 
 @dataclass(frozen=True)
@@ -44,7 +45,7 @@ class Profile:
     cnn_epochs: int  # paper: 200
     dagger_episodes: int  # the CNN insertion's own rollouts labelled by the expert (DAgger), which it trains on again
     dagger_epochs: int  # that training, on the demonstrations and the labelled rollouts together
-    dagger_rounds: int  # each records the last policy's rollouts and trains it again
+    dagger_rounds: int  # each records the last policy's rollouts and trains it again (0: none)
     vae_epochs: int
     dynamics_epochs: int
     goal_epochs: int
@@ -66,17 +67,18 @@ class Profile:
 PROFILES = {
     "quick": Profile("quick", resolution=64, image_size=64, insertion_demos=20, transport_demos=20,
                      full_task_demos=7, train_demos=5, dmp_episodes=5, rollouts=4, cnn_epochs=80, dagger_episodes=20,
-                     dagger_epochs=50, dagger_rounds=1, vae_epochs=15, dynamics_epochs=30, goal_epochs=30,
+                     dagger_epochs=50, dagger_rounds=0, vae_epochs=15, dynamics_epochs=30, goal_epochs=30,
                      table_trials=3, compose_episodes=10, knockout_episodes=3, mdp_episodes_19=1000,
                      mdp_episodes_100=30,
-                     holds="The MDP experiments, the MP row of Table I and the goal-score comparison between cameras "
-                           "hold at this size (the MP row needs no training; the MDP runs 1000 episodes, and 30 in "
+                     holds="The MDP experiments, the MP row of Table I and the goal-score comparison between cameras"
+                           " hold at this size (the MP row needs no training; the MDP runs 1000 episodes, and 30 in "
                            "each of the 9x9 noise cells). The CNN policies (20 demonstrations each, 80 epochs) are "
-                           "far below the paper's sizes and Table I's cells have 3 trials, so the CNN row shows that "
-                           "the pipeline works, not how well: run `--profile paper` for that. So the paper's "
-                           "experiment (the straight-down insertions) does not hold here either: it needs a CNN "
-                           "insertion that seats the gear. The composed row's 10 seeds show the selector at work; "
-                           "its rate at this size needs more seeds than this job runs.",
+                           "far below the paper's sizes (and without DAgger: at 64 px the insertion seated none of "
+                           "20 rollouts, and a round did not change its Table I cell), and Table I's cells have 3 "
+                           "trials, so the CNN row shows that the pipeline works, not how well: run `--profile "
+                           "paper` for that. So the paper's experiment (the straight-down insertions) does not hold "
+                           "here either: it needs a CNN insertion that seats the gear. The composed row's 10 seeds "
+                           "show the selector at work; its rate at this size needs more seeds than this job runs.",
                      elsewhere="the composed row on 100 held-out seeds, and recovery from 20 knock-outs, with the "
                                "models of an earlier run of this profile (measured 2026-12-02)"),
     "paper": Profile("paper", resolution=128, image_size=64, insertion_demos=50, transport_demos=50,
@@ -146,8 +148,9 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
         Stage("dmp", f"fit the DMPs to the motion planner's episodes ({p.dmp_episodes})",
               {"episodes": p.dmp_episodes, **env},
               lambda out, _: _fit_dmp(out, p.dmp_episodes)),
-        Stage("bc-cnn", f"train the CNN policies on the demonstrations: pick, move, insert ({p.cnn_epochs} "
-              "epochs)", {s: asdict(c) for s, c in cnn.items()},
+        Stage(BC_STAGE if p.dagger_rounds else "cnn",
+              f"train the CNN policies on the demonstrations: pick, move, insert ({p.cnn_epochs} epochs)",
+              {s: asdict(c) for s, c in cnn.items()},
               lambda out, i: _train_cnn(out, i, cnn), inputs=("insertion-demos", "transport-demos")),
         *_dagger_rounds(p, dagger, record(dagger, p.dagger_episodes), dagger_cnn, workers),
         Stage("controller-rollouts", f"record rollouts of each controller ({p.rollouts} each)",
@@ -221,8 +224,8 @@ def run_demo(profile: str = "quick", out: str | Path = "results",
 def _dagger_rounds(p: Profile, recipe, key: dict, config: CNNPolicyConfig, workers: int) -> list[Stage]:
     """DAgger for the CNN insertion, `p.dagger_rounds` times: record the last policy's rollouts labelled by the expert
     (`insertion-dagger-K`), then train the insertion anew on its demonstrations and every round's rollouts. The last
-    round's model is stage `cnn`, the library's."""
-    stages, policy, rollouts = [], "bc-cnn", ()
+    round's model is stage `cnn`, the library's (with no rounds, the demonstrations' is)."""
+    stages, policy, rollouts = [], BC_STAGE, ()
     for k in range(1, p.dagger_rounds + 1):
         seed, name = DAGGER_SEED + 1000 * (k - 1), f"insertion-dagger-{k}"
         rollouts += (name,)

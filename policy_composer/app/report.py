@@ -109,11 +109,16 @@ def _header(profile, records: dict[str, StageRecord], wall_seconds: float, out: 
         f"Sizes: {profile.insertion_demos} insertion and {profile.transport_demos} pick-up and carry demonstrations, "
         f"{profile.train_demos} full-task demonstrations "
         f"for the goal scorers ({profile.full_task_demos - profile.train_demos} held out), {profile.rollouts} rollouts "
-        f"per controller, CNN {profile.cnn_epochs} epochs (the insertion then {profile.dagger_epochs} more on its "
-        f"demonstrations and {profile.dagger_episodes} of its own rollouts labelled by the expert), "
-        f"{profile.mixtures} mixtures, "
+        f"per controller, CNN {profile.cnn_epochs} epochs{_dagger(profile)}, {profile.mixtures} mixtures, "
         f"selector n = {profile.horizon}, "
         f"K = {profile.samples}, cameras at {profile.resolution} px (models see {profile.image_size} px)."])
+
+
+def _dagger(profile) -> str:
+    if not profile.dagger_rounds:
+        return ""
+    return (f" (then {profile.dagger_rounds} DAgger round(s) for the insertion: {profile.dagger_episodes} of its "
+            f"rollouts labelled by the expert, and {profile.dagger_epochs} epochs on them and the demonstrations)")
 
 
 def _rows(record: StageRecord) -> dict[str, dict[str, Cell]]:
