@@ -327,7 +327,8 @@ def _train_dagger(out: Path, inputs: dict[str, Path], config: CNNPolicyConfig, p
     datasets = [inputs[name] / "dataset" for name in ("insertion-demos", *rollouts)]
     _, losses = train_cnn_policy(datasets, config, out=out / "cnn" / "insert")
     seconds = time.perf_counter() - t0
-    return {"timings": {"CNN insert policy, DAgger": seconds}, "nll": {"insert": [losses[0], losses[-1]]}}
+    return {"timings": {f"CNN insert policy, DAgger round {len(rollouts)}": seconds},
+            "nll": {"insert": [losses[0], losses[-1]]}}
 
 
 def _train_world(out: Path, inputs: dict[str, Path], vae, dynamics, goal) -> dict:
