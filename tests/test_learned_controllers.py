@@ -136,9 +136,10 @@ def test_a_dagger_round_records_the_experts_labels_along_the_policys_own_path(in
     config = CNNPolicyConfig(**{**TINY, "max_steps": 12})
     train_cnn_policy(insertion_demos, config, out=tmp_path / "cnn" / "insert", progress=False)
     labels, sent, stepped = [], [], []
-    label, act, step = GearAssemblyExpert.act, CNNController.act, FrameBuffer.step
-    monkeypatch.setattr(GearAssemblyExpert, "act", lambda self, obs=None: labels.append(label(self, obs)) or labels[-1])
-    monkeypatch.setattr(CNNController, "act", lambda self, obs: sent.append(act(self, obs)) or sent[-1])
+    expert_act, policy_act, step = GearAssemblyExpert.act, CNNController.act, FrameBuffer.step
+    monkeypatch.setattr(GearAssemblyExpert, "act",
+                        lambda self, obs=None: labels.append(expert_act(self, obs)) or labels[-1])
+    monkeypatch.setattr(CNNController, "act", lambda self, obs: sent.append(policy_act(self, obs)) or sent[-1])
 
     def logged(self, action, label=None):
         # Each step sends the policy's latest command and records the expert's latest label.
