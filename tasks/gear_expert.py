@@ -50,6 +50,10 @@ class ExpertConfig:
     # the expert's own command. So the demonstrations show corrections from states off the expert's path.
     noise: float = 0.0
     noise_steps: float = 10.0  # the offset's correlation time, control steps
+    # Carry and insert from where the hand is (the measured TCP) each step, not from the expert's own last command.
+    # A labeller of states a policy drives (DAgger) needs it: its own command would wind up, step after step, while
+    # the policy goes elsewhere, until no IK reaches it. Each label is then the expert's step from the measured hand.
+    from_arm: bool = False
 
 
 class GearAssemblyExpert:
@@ -132,6 +136,8 @@ class GearAssemblyExpert:
         env, cfg, spec = self.env, self.config, self.env.gear_spec
         target = None
         self._timer += 1
+        if cfg.from_arm and self.phase in ("carry", "insert"):
+            self._cmd_p = self._np(env.left_arm.tcp.pose.p)
         if self.phase == "approach":
             target, dist = self._toward(self._grasp_p + [0, 0, 0.08], cfg.max_step)
             if dist < 1e-3:

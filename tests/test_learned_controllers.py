@@ -32,8 +32,8 @@ from policy_composer.policies.cnn.train import (
 from policy_composer.policies.lerobot_policy.controller import LeRobotPolicyController, lerobot_label
 from policy_composer.policies.library import LibrarySources
 from policy_composer.policies.subtasks import SUBTASKS
-from policy_composer.tasks.gear_expert import GearAssemblyExpert
-from policy_composer.tasks.gear_kinematics import LeftArmIK
+from policy_composer.tasks.gear_expert import ExpertConfig, GearAssemblyExpert
+from policy_composer.tasks.gear_kinematics import LeftArmIK, PandaForwardKinematics
 from policy_composer.tasks.spec import EnvSettings
 
 TINY = dict(image_size=32, hidden_dim=64, num_mixtures=4, batch_size=16, epochs=30)
@@ -161,6 +161,32 @@ def test_a_dagger_round_records_the_experts_labels_along_the_policys_own_path(in
     assert np.abs(np.stack(executed)[:, :7] - np.stack(recorded)[:, :7]).max() > 1e-3  # the arm followed the policy
     data = load_demonstrations([insertion_demos, root], config, progress=False)
     assert len(data["image"]) == len(load_demonstrations(insertion_demos, config, progress=False)["image"]) + len(ds)
+
+
+def test_a_move_dagger_round_starts_after_the_pick_and_labels_steps_from_the_hand(transport_demos, tmp_path):
+    """The move's corrections: the expert picks the gear up unrecorded, the policy carries it, and each label is the
+    expert's step from where the policy left the hand, so a policy that strays for long gets no wound-up labels."""
+    config = CNNPolicyConfig(**{**TINY, "subtask": "move", "max_steps": 25})
+    train_cnn_policy(transport_demos, config, out=tmp_path / "cnn" / "move", progress=False)
+    root = tmp_path / "dagger"
+    sources = LibrarySources(models={"cnn": str(tmp_path / "cnn")})
+    sidecar = record_recipe(load_recipe("gear-move-dagger"), root, episodes=2, seed=3,
+                            settings=EnvSettings(resolution=32), sources=sources, progress=False)
+    assert sidecar["controllers"] == ["cnn_move"] and sidecar["expert"]["labels"] == "arm"
+    frames = open_dataset(root).hf_dataset
+    first = np.flatnonzero(np.diff(np.asarray(frames["episode_index"]), prepend=-1))
+    assert len(first) == 2 and all(frames[int(i)]["stage"] == 1 for i in first)  # lifted: the pick is not recorded
+    fk = PandaForwardKinematics()
+    hand, _ = fk.tcp(np.stack(frames["observation.state"])[:, :7].astype(np.float64))
+    label, _ = fk.tcp(np.stack(frames["action"])[:, :7].astype(np.float64))
+    steps = np.linalg.norm(label - hand, axis=1)
+    assert steps.max() <= ExpertConfig().max_step + 1e-3 and steps.min() > 0  # a step from the hand, never wound up
+    moving = np.isin(np.asarray(frames["stage"]).ravel(), (1, 2))  # the move's frames (a dropped gear's are not)
+    data = load_demonstrations([transport_demos, root], config, progress=False)
+    demos = load_demonstrations(transport_demos, config, progress=False)
+    assert len(data["action"]) == len(demos["action"]) + moving.sum()
+    np.testing.assert_allclose(np.linalg.norm(data["action"][len(demos["action"]):, :3], axis=1), steps[moving],
+                               atol=1e-5)
 
 
 def test_a_policy_pushing_against_the_table_keeps_its_command_near_the_hand(rgb_env):

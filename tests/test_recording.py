@@ -24,7 +24,7 @@ from policy_composer.app.record import record_recipe
 from policy_composer.data import journal
 from policy_composer.data.catalog import HubUnreachable, card_fields, drop_controller, push_dataset, summarize
 from policy_composer.data.features import LEROBOT_VERSION, DatasetError, open_dataset
-from policy_composer.data.recipes import RecipeError, available_recipes, load_recipe
+from policy_composer.data.recipes import ExpertSettings, RecipeError, available_recipes, load_recipe
 from policy_composer.data.recorder import LeRobotRecorder
 from policy_composer.learning.checkpoint import CheckpointError
 from policy_composer.policies.library import LeRobotSource, LibraryError, LibrarySources
@@ -205,7 +205,7 @@ def test_bad_input_is_named(insertion_demos, tmp_path):
     with pytest.raises(RecipeError, match="known recipes"):
         load_recipe("gear-nothing")
     assert available_recipes() == ["gear-controller-rollouts", "gear-full-task-demos", "gear-insertion-dagger",
-                                   "gear-insertion-demos", "gear-transport-demos"]
+                                   "gear-insertion-demos", "gear-move-dagger", "gear-transport-demos"]
     assert load_recipe("gear-full-task-demos").splits(8) == {"train": [0, 1, 2, 3, 4], "heldout": [5, 6, 7]}
     rollouts = load_recipe("gear-controller-rollouts")
     assert rollouts.cameras == ("head", "left_forearm")
@@ -226,6 +226,8 @@ def test_bad_input_is_named(insertion_demos, tmp_path):
         replace(rollouts, record_phases=("insert", "wave"))
     with pytest.raises(RecipeError, match="the dagger driver runs one controller"):
         replace(load_recipe("gear-insertion-dagger"), controllers=("cnn_insert", "mp_insert"))
+    with pytest.raises(RecipeError, match="labels must be one of"):
+        ExpertSettings(labels="hand")
 
 
 def test_controller_rollouts_name_their_controller(controller_rollouts):

@@ -29,7 +29,7 @@ DEMONSTRATIONS = {"pick": ("gear-transport-demos", (0,)), "move": ("gear-transpo
                   "insert": ("gear-insertion-demos", None)}
 # The recipe of a subtask's corrections: the policy's own rollouts labelled by the scripted expert (DAgger), which it
 # may train on beside its demonstrations.
-CORRECTIONS = {"insert": "gear-insertion-dagger"}
+CORRECTIONS = {"move": "gear-move-dagger", "insert": "gear-insertion-dagger"}
 
 
 @register_kind("cnn", label="CNN", subtasks=tuple(DEMONSTRATIONS), trained=True)

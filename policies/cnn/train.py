@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from policy_composer.data.features import DatasetError, image_key
+from policy_composer.data.features import DatasetError, image_key, read_sidecar
 from policy_composer.data.frames import load_frames, random_shift
 from policy_composer.data.recipes import check_recipe
 from policy_composer.learning.checkpoint import CheckpointError, load_checkpoint, load_config, save_checkpoint
@@ -73,7 +73,10 @@ def load_demonstrations(root: str | Path | Sequence[str | Path], config: CNNPoli
     frames = load_frames(root, (config.camera,), config.image_size, episodes, required=required, progress=progress,
                          window=config.window)
     state, action = frames["observation.state"], frames["action"]
-    prev = previous_commands(state, action, frames["episode_index"])  # over whole episodes, before the stage cut
+    if read_sidecar(root).get("expert", {}).get("labels") == "arm":  # each label is a step from the measured hand
+        prev = state
+    else:
+        prev = previous_commands(state, action, frames["episode_index"])  # over whole episodes, before the stage cut
     keep = torch.isin(frames["stage"], torch.tensor(stages)) if stages else torch.ones(len(state), dtype=torch.bool)
     if not keep.any():
         raise DatasetError(f"{root} has no frames of the {config.subtask} subtask (stages {list(stages)}); record "

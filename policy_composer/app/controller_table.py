@@ -64,16 +64,21 @@ def start_state(env, seed: int, subtask: str, max_steps: int = 300):
 
 
 def _expert_until(env, seed: int, subtask: str, max_steps: int):
-    """Run the open-loop expert from the reset until its phase is where `subtask` starts (None if it never is).
-    Nothing renders on the way: the expert reads the scene, not the cameras."""
+    """Run the open-loop expert from the reset until its phase is where `subtask` starts (None if it never is)."""
     from policy_composer.tasks.gear_expert import ExpertConfig, GearAssemblyExpert
 
     env.reset(seed=seed)
     expert = GearAssemblyExpert(env, ExpertConfig(closed_loop=False))
     expert.reset(seed)
+    return expert_until(env, expert, START_PHASE[subtask], max_steps)
+
+
+def expert_until(env, expert, phase: str, max_steps: int):
+    """Step the env with `expert`'s commands until the expert is in `phase`; the observation there (None if it
+    never gets there). Nothing renders on the way: the expert reads the scene, not the cameras."""
     u = env.unwrapped
     for _ in range(max_steps):
-        if expert.phase == START_PHASE[subtask]:
+        if expert.phase == phase:
             return u.observe()
         u.step_unobserved(u.flat_to_dict_action(expert.act()))
     return None

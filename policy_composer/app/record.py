@@ -187,18 +187,24 @@ class EpisodeRecorder:
                                {"grasp_offset_mm": round(expert.grasp_offset * 1000, 3)})
 
     def _dagger(self, seed: int) -> RecordedEpisode | None:
-        """The recipe's controller acting from the expert's start state, each frame labelled with the command the
+        """The recipe's controller acting from its subtask's start state, each frame labelled with the command the
         scripted expert gives in that state. The episode ends where the activation does, with the frame it ended in
         (where the policy's command collided, say); a back-off is left out after its first step, since the
         controller does not choose it (its guard does)."""
+        from policy_composer.app.controller_table import START_PHASE, expert_until
         from policy_composer.tasks.rollout import episode_limit
 
         recipe, buffer, expert = self.recipe, self.buffer, self.expert
         controller = self.library[recipe.controllers[0]]
         obs, _ = buffer.reset(seed=seed, options=recipe.reset_options())
+        expert.reset(seed)
+        phase = START_PHASE.get(controller.subtask.name)
+        if phase is not None:  # the expert takes the arm, unrecorded, to where the controller's subtask starts
+            if expert_until(buffer, expert, phase, episode_limit(buffer)) is None:
+                return None
+            obs = buffer.observe()
         if not controller.can_start(obs):  # a start outside its initiation set, which no selector would run it from
             return None
-        expert.reset(seed)
         controller.start(obs, seed=seed)
         buffer.controller = controller.name
         for _ in range(episode_limit(buffer)):
@@ -221,9 +227,8 @@ class EpisodeRecorder:
         from policy_composer.policies.arm import run_activation
 
         buffer = self.buffer
-        buffer.recording = False
-        obs = start_state(buffer, seed, controller.subtask.name)
-        buffer.recording = True
+        start_state(buffer, seed, controller.subtask.name)
+        obs = buffer.observe()
         buffer.controller = controller.name
         run_activation(buffer, controller, obs, seed)
         if buffer.buffered_frames == 0:

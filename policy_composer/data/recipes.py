@@ -12,6 +12,7 @@ from policy_composer.tasks.spec import CAMERA_NAMES, EXPERT_PHASES, GOAL_FLAGS, 
 
 RECIPE_DIR = Path(__file__).resolve().parents[2] / "datasets" / "recipes"
 DRIVERS = ("expert", "controllers", "dagger")
+LABELS = ("command", "arm")
 
 
 class RecipeError(ValueError):
@@ -39,13 +40,21 @@ class ExpertSettings:
     # its grasp offset besides, so where the gear sits in the fingers tells which way the peg is.
     gear_arrival_mm: float = 0.0
     noise_mm: float = 0.0  # DART: the executed TCP target's drifting offset (see ExpertConfig.noise)
+    # What a label's command is a step from (see ExpertConfig.from_arm): "command", the expert's own last command;
+    # "arm", the measured hand, for a labeller of states it does not drive (DAgger).
+    labels: str = "command"
+
+    def __post_init__(self):
+        if self.labels not in LABELS:
+            raise RecipeError(f"[expert] labels must be one of {list(LABELS)}, not {self.labels!r}")
 
     def config(self):
         """The scripted expert's ExpertConfig for these settings (the simulator loads only when it is asked for)."""
         from policy_composer.tasks.gear_expert import ExpertConfig
 
         return ExpertConfig(grasp_offset=self.grasp_offset_mm / 1000.0, teleop=self.teleop,
-                            arrival_error=self.arrival_error_mm / 1000.0, noise=self.noise_mm / 1000.0)
+                            arrival_error=self.arrival_error_mm / 1000.0, noise=self.noise_mm / 1000.0,
+                            from_arm=self.labels == "arm")
 
 
 @dataclass(frozen=True)

@@ -95,6 +95,14 @@ class FrameBuffer(gym.Wrapper):
         self._stage, self._offset = int(self.env.unwrapped.evaluate()["stage"][0]), _gear_offset(self.env.unwrapped)
         return obs, info
 
+    def observe(self):
+        """The env's observation now, from which the next frame is recorded: after steps taken around the buffer
+        (unrecorded and unrendered, say by the expert bringing the arm to where a subtask starts)."""
+        u = self.env.unwrapped
+        self._obs = u.observe()
+        self._stage, self._offset = int(u.evaluate()["stage"][0]), _gear_offset(u)
+        return self._obs
+
     def step(self, action, label=None):
         """Step with `action`; the frame records `label` as its action if given (DART: the expert's own command,
         where the arm was sent a perturbed one)."""
