@@ -18,16 +18,16 @@ from pathlib import Path
 
 from policy_composer.app.pipeline import Stage, StageRecord, run_stages
 from policy_composer.data.lock import one_writer
-from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
+from policy_composer.policies.cnn.configuration_cnn import CORRECTIONS, DEMONSTRATIONS, CNNPolicyConfig
 from policy_composer.selector.configuration import ComposeConfig
 from policy_composer.tasks.spec import CAMERA_NAMES as CAMERAS
 from policy_composer.tasks.spec import SUBTASK_COLUMNS
 
 # The controllers that `--insertion straight` changes: the paper's open-loop insertions.
 STRAIGHT = ("mp_insert", "dmp_insert")
-# The first seed of the CNN insertion's DAgger rollouts: clear of the seeds the job's tables and compositions run
-# (and of the replacements Table I draws, seed + 1000 k).
-DAGGER_SEED = 80000
+# The first seed of each CNN policy's DAgger rollouts (round K starts 1000 (K - 1) later): clear of the seeds the
+# job's tables and compositions run (and of the replacements Table I draws, seed + 1000 k).
+DAGGER_SEEDS = {"insert": 80000, "move": 90000}
 BC_STAGE = "bc-cnn"  # the CNN policies behaviour-cloned on their demonstrations, where DAgger rounds follow
 
 
@@ -43,9 +43,9 @@ class Profile:
     dmp_episodes: int  # planner episodes the DMPs are fitted to
     rollouts: int  # per controller, for its dynamics model
     cnn_epochs: int  # paper: 200
-    dagger_episodes: int  # the CNN insertion's own rollouts labelled by the expert (DAgger), which it trains on again
+    dagger_episodes: int  # a CNN policy's own rollouts labelled by the expert (DAgger), which it trains on again
     dagger_epochs: int  # that training, on the demonstrations and the labelled rollouts together
-    dagger_rounds: int  # each records the last policy's rollouts and trains it again (0: none)
+    dagger_rounds: int  # each records the last policies' rollouts and trains them again (0: none)
     vae_epochs: int
     dynamics_epochs: int
     goal_epochs: int
@@ -60,6 +60,7 @@ class Profile:
     samples: int = 16
     cnn_max_steps: int = CNNPolicyConfig.max_steps  # a CNN controller's step limit
     compose_max_steps: int = ComposeConfig.max_steps  # control steps of a composed episode
+    dagger_subtasks: tuple[str, ...] = ("insert",)  # the CNN policies the DAgger rounds train (see CORRECTIONS)
     holds: str = ""  # which results this size supports
     elsewhere: str = ""  # figures at this size that other runs measured (the report links to them in the README)
 
@@ -95,7 +96,7 @@ PROFILES = {
                      dagger_epochs=2, dagger_rounds=1, vae_epochs=2, dynamics_epochs=2, goal_epochs=2,
                      table_trials=1, compose_episodes=1, knockout_episodes=1, mdp_episodes_19=20, mdp_episodes_100=2,
                      mdp_levels=(0.0, 0.4, 0.8), mixtures=4, horizon=3, samples=4, cnn_max_steps=30,
-                     compose_max_steps=250,
+                     compose_max_steps=250, dagger_subtasks=("move", "insert"),
                      holds="Every stage at the smallest size that runs, to test the pipeline: no figure here means "
                            "anything."),
 }
@@ -112,14 +113,13 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
     from policy_composer.tasks.gear_assembly import TASK_REVISION
 
     insertion = load_recipe("gear-insertion-demos")
-    dagger = load_recipe("gear-insertion-dagger")
     transport = load_recipe("gear-transport-demos")
     full_task = replace(load_recipe("gear-full-task-demos"), train_episodes=p.train_demos)
     rollouts = load_recipe("gear-controller-rollouts")
     straight_rollouts = replace(rollouts, controllers=STRAIGHT)
     cnn = {s: CNNPolicyConfig(subtask=s, epochs=p.cnn_epochs, num_mixtures=p.mixtures, image_size=p.image_size,
                               max_steps=p.cnn_max_steps) for s in ("pick", "move", "insert")}
-    dagger_cnn = replace(cnn["insert"], epochs=p.dagger_epochs)
+    dagger = {s: (load_recipe(CORRECTIONS[s]), replace(cnn[s], epochs=p.dagger_epochs)) for s in p.dagger_subtasks}
     vae = VAEConfig(epochs=p.vae_epochs, image_size=p.image_size)
     dynamics = DynamicsConfig(epochs=p.dynamics_epochs)
     goal = GoalScoreConfig(epochs=p.goal_epochs, num_mixtures=p.mixtures, image_size=p.image_size)
@@ -152,7 +152,7 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
               f"train the CNN policies on the demonstrations: pick, move, insert ({p.cnn_epochs} epochs)",
               {s: asdict(c) for s, c in cnn.items()},
               lambda out, i: _train_cnn(out, i, cnn), inputs=("insertion-demos", "transport-demos")),
-        *_dagger_rounds(p, dagger, record(dagger, p.dagger_episodes), dagger_cnn, workers),
+        *_dagger_rounds(p, {s: (r, c, record(r, p.dagger_episodes)) for s, (r, c) in dagger.items()}, workers),
         Stage("controller-rollouts", f"record rollouts of each controller ({p.rollouts} each)",
               {**record(rollouts, p.rollouts), **library},
               lambda out, i: _record(rollouts, out, p.rollouts, p.resolution, workers, _sources(i)),
@@ -221,24 +221,28 @@ def run_demo(profile: str = "quick", out: str | Path = "results",
     return records, report
 
 
-def _dagger_rounds(p: Profile, recipe, key: dict, config: CNNPolicyConfig, workers: int) -> list[Stage]:
-    """DAgger for the CNN insertion, `p.dagger_rounds` times: record the last policy's rollouts labelled by the expert
-    (`insertion-dagger-K`), then train the insertion anew on its demonstrations and every round's rollouts. The last
-    round's model is stage `cnn`, the library's (with no rounds, the demonstrations' is)."""
-    stages, policy, rollouts = [], BC_STAGE, ()
+def _dagger_rounds(p: Profile, subtasks: dict[str, tuple], workers: int) -> list[Stage]:
+    """DAgger for the CNN policies of `subtasks` (subtask -> its corrections recipe, training config and recording
+    key), `p.dagger_rounds` times: record each last policy's rollouts labelled by the expert (`insertion-dagger-K`,
+    `move-dagger-K`), then train each anew on its demonstrations and every round's rollouts. The last round's model
+    is stage `cnn`, the library's (with no rounds, the demonstrations' is)."""
+    stages, policy, rollouts = [], BC_STAGE, {s: () for s in subtasks}
     for k in range(1, p.dagger_rounds + 1):
-        seed, name = DAGGER_SEED + 1000 * (k - 1), f"insertion-dagger-{k}"
-        rollouts += (name,)
+        for s, (recipe, _, key) in subtasks.items():
+            seed, name = DAGGER_SEEDS[s] + 1000 * (k - 1), f"{recipe.name.removeprefix('gear-')}-{k}"
+            rollouts[s] += (name,)
+            stages.append(Stage(name, f"record the CNN {s} policy's rollouts labelled by the expert (DAgger round {k}, "
+                                f"{p.dagger_episodes})", {**key, "seed": seed},
+                                partial(_dagger_record, recipe, p, workers, policy, seed), inputs=(policy,),
+                                resumable=True, verify=_verify_dataset))
         trained = "cnn" if k == p.dagger_rounds else f"dagger-cnn-{k}"
-        stages += [
-            Stage(name, f"record the CNN insertion's rollouts labelled by the expert (DAgger round {k}, "
-                  f"{p.dagger_episodes})", {**key, "seed": seed},
-                  partial(_dagger_record, recipe, p, workers, policy, seed), inputs=(policy,), resumable=True,
-                  verify=_verify_dataset),
-            Stage(trained, f"train the CNN insertion on its demonstrations and {k} round(s) of the expert's "
-                  f"corrections ({p.dagger_epochs} epochs)", asdict(config),
-                  partial(_train_dagger, config=config, policy=policy, rollouts=rollouts),
-                  inputs=(policy, "insertion-demos", *rollouts))]
+        configs = {s: config for s, (_, config, _) in subtasks.items()}
+        datasets = {s: (DEMONSTRATIONS[s][0].removeprefix("gear-"), *rollouts[s]) for s in subtasks}
+        stages.append(Stage(trained, f"train the CNN {', '.join(subtasks)} policies on their demonstrations and {k} "
+                            f"round(s) of the expert's corrections ({p.dagger_epochs} epochs)",
+                            {s: asdict(c) for s, c in configs.items()},
+                            partial(_train_dagger, configs=configs, policy=policy, datasets=datasets),
+                            inputs=(policy, *dict.fromkeys(n for d in datasets.values() for n in d))))
         policy = trained
     return stages
 
@@ -298,7 +302,6 @@ def _train_cnn(out: Path, inputs: dict[str, Path], configs: dict) -> dict:
     """One CNN policy per subtask, in the library's CNN model folder (out/cnn/SUBTASK)."""
     import torch
 
-    from policy_composer.policies.cnn.configuration_cnn import DEMONSTRATIONS
     from policy_composer.policies.cnn.train import train_cnn_policy
 
     torch.set_num_threads(2)
@@ -311,10 +314,10 @@ def _train_cnn(out: Path, inputs: dict[str, Path], configs: dict) -> dict:
     return {"timings": timings, "nll": nll}
 
 
-def _train_dagger(out: Path, inputs: dict[str, Path], config: CNNPolicyConfig, policy: str,
-                  rollouts: tuple[str, ...]) -> dict:
-    """A CNN model: the pick-up and move policies of stage `policy`, and the insertion trained anew on its
-    demonstrations and the labelled rollouts of stages `rollouts`."""
+def _train_dagger(out: Path, inputs: dict[str, Path], configs: dict[str, CNNPolicyConfig], policy: str,
+                  datasets: dict[str, tuple[str, ...]]) -> dict:
+    """A CNN model: the policies of stage `policy`, with those of `configs` trained anew on the datasets of their
+    stages `datasets` (the demonstrations and the labelled rollouts)."""
     import torch
 
     from policy_composer.policies.cnn.train import train_cnn_policy
@@ -322,13 +325,16 @@ def _train_dagger(out: Path, inputs: dict[str, Path], config: CNNPolicyConfig, p
     torch.set_num_threads(2)
     if (out / "cnn").exists():
         shutil.rmtree(out / "cnn")
-    shutil.copytree(inputs[policy] / "cnn", out / "cnn", ignore=shutil.ignore_patterns("insert"))
-    t0 = time.perf_counter()
-    datasets = [inputs[name] / "dataset" for name in ("insertion-demos", *rollouts)]
-    _, losses = train_cnn_policy(datasets, config, out=out / "cnn" / "insert")
-    seconds = time.perf_counter() - t0
-    return {"timings": {f"CNN insert policy, DAgger round {len(rollouts)}": seconds},
-            "nll": {"insert": [losses[0], losses[-1]]}}
+    shutil.copytree(inputs[policy] / "cnn", out / "cnn", ignore=shutil.ignore_patterns(*configs))
+    timings, nll = {}, {}
+    for subtask, config in configs.items():
+        t0 = time.perf_counter()
+        _, losses = train_cnn_policy([inputs[name] / "dataset" for name in datasets[subtask]], config,
+                                     out=out / "cnn" / subtask)
+        rounds = len(datasets[subtask]) - 1
+        timings[f"CNN {subtask} policy, DAgger round {rounds}"] = time.perf_counter() - t0
+        nll[subtask] = [losses[0], losses[-1]]
+    return {"timings": timings, "nll": nll}
 
 
 def _train_world(out: Path, inputs: dict[str, Path], vae, dynamics, goal) -> dict:

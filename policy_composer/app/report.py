@@ -117,8 +117,9 @@ def _header(profile, records: dict[str, StageRecord], wall_seconds: float, out: 
 def _dagger(profile) -> str:
     if not profile.dagger_rounds:
         return ""
-    return (f" (then {profile.dagger_rounds} DAgger round(s) for the insertion: {profile.dagger_episodes} of its "
-            f"rollouts labelled by the expert, and {profile.dagger_epochs} epochs on them and the demonstrations)")
+    return (f" (then {profile.dagger_rounds} DAgger round(s) for the {' and '.join(profile.dagger_subtasks)}: "
+            f"{profile.dagger_episodes} of each policy's rollouts labelled by the expert, and "
+            f"{profile.dagger_epochs} epochs on them and its demonstrations)")
 
 
 def _rows(record: StageRecord) -> dict[str, dict[str, Cell]]:
