@@ -36,6 +36,7 @@ def test_expert_prints_success_and_writes_a_three_camera_video(tmp_path):
     (("compose", "--lerobot", "nowhere:insert"), "no LeRobot policy checkpoint at nowhere"),
     (("compose", "--lerobot", "nowhere"), "give PATH:SUBTASK or PATH:SUBTASK:NAME, SUBTASK one of pick, move, insert"),
     (("record", "gear-insertion-demos", "--lerobot", "ckpt:fly"), "give PATH:SUBTASK"),
+    (("record", "gear-insertion-demos", "--ray", "127.0.0.1:1"), "no Ray cluster answers at 127.0.0.1:1"),
     (("library", "add", "--lerobot", "ckpt:insert:act-1"), "the controller's name must be letters, digits and _"),
     (("library", "add", "--lerobot", "nowhere:insert:act_insert"), "no LeRobot policy checkpoint at nowhere"),
 ])

@@ -3,13 +3,22 @@
 from __future__ import annotations
 
 import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
 
 import numpy as np
+import psutil
 import pytest
 import torch
 
 from policy_composer.app.controller_table import evaluate_rows
-from policy_composer.app.workers import run_episodes
+from policy_composer.app.workers import ClusterError, run_episodes, stop_ray, use_ray
 from policy_composer.data.features import open_dataset
 from policy_composer.policies.library import LibrarySources
 
@@ -60,9 +69,14 @@ def test_rollouts_recorded_on_two_workers_are_the_serial_dataset(controller_roll
     recipe = replace(load_recipe("gear-controller-rollouts"), controllers=("mp_pick", "mp_insert"))
     record_recipe(recipe, root, episodes=1, settings=EnvSettings(resolution=32), progress=False,
                   sources=LibrarySources(max_grasp_offset=0.0), workers=2)
-    ours, theirs = (json.loads((r / "meta" / "policy_composer.json").read_text()) for r in (root, controller_rollouts))
-    assert ours == theirs  # seeds, controllers, outcomes, lengths, next seed
-    ours, theirs = open_dataset(root), open_dataset(controller_rollouts)
+    assert_same_dataset(root, controller_rollouts)
+
+
+def assert_same_dataset(root, serial) -> None:
+    """The dataset at `root` is the serial recording `serial`, episode for episode and frame for frame."""
+    ours, theirs = (json.loads((r / "meta" / "policy_composer.json").read_text()) for r in (root, serial))
+    assert ours == theirs  # seeds, controllers, outcomes, lengths, next seed, digests
+    ours, theirs = open_dataset(root), open_dataset(serial)
     assert ours.num_frames == theirs.num_frames
     for column in ("observation.state", "action", "controller", "progress", "episode_index"):
         assert torch.equal(torch.as_tensor(np.stack(ours.hf_dataset[column])),
@@ -70,3 +84,67 @@ def test_rollouts_recorded_on_two_workers_are_the_serial_dataset(controller_roll
     for i in (0, ours.num_frames - 1):  # the videos decode to the same images
         for key in ours.meta.video_keys:
             assert torch.equal(ours[i][key], theirs[i][key]), (i, key)
+
+
+@pytest.fixture(scope="module")
+def ray_cluster(tmp_path_factory):
+    """A Ray head on 127.0.0.1 with 2 CPUs, this module's alone; this process runs its episode loops there."""
+    ray = pytest.importorskip("ray", reason="Ray is the distributed extra (scripts/setup.sh installs it)")
+    port = free_port()
+    env = {**os.environ, "RAY_worker_niceness": "0"}  # as fast as the other jobs on a shared machine
+    head = subprocess.Popen([str(Path(sys.executable).parent / "ray"), "start", "--head", "--block",
+                             "--node-ip-address=127.0.0.1", f"--port={port}", "--num-cpus=2",
+                             "--include-dashboard=false", "--disable-usage-stats",
+                             f"--temp-dir={tmp_path_factory.mktemp('ray')}"],
+                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        address = f"127.0.0.1:{port}"
+        for _ in range(120):  # the head takes a few seconds (more on a busy machine)
+            try:
+                assert use_ray(address) == 2
+                break
+            except ClusterError:
+                time.sleep(1)
+        else:
+            pytest.fail(f"the Ray head at {address} did not start")
+        yield address
+    finally:
+        stop_ray()
+        os.killpg(head.pid, signal.SIGTERM)
+        head.wait(60)
+    assert not ray.is_initialized()
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.timeout(900)
+def test_episodes_on_a_ray_cluster_are_the_serial_ones_and_a_killed_worker_runs_its_episode_again(
+        ray_cluster, transport_demos, tmp_path):
+    """Two workers as Ray actors: the results in the order of the items; a worker killed mid-episode is restarted
+    and its episode run again, and this process writes each episode once: the serial dataset."""
+    from policy_composer.app.record import record_recipe
+    from policy_composer.data.recipes import load_recipe
+    from policy_composer.tasks.spec import EnvSettings
+
+    killed = []
+
+    def kill_one_running_episode():
+        while not killed:
+            for p in psutil.process_iter(["cmdline"]):
+                if (p.info["cmdline"] or [""])[0].startswith("ray::PoolActor.run_batch"):
+                    p.kill()
+                    killed.append(p.pid)
+                    return
+            time.sleep(0.2)
+
+    killer = threading.Thread(target=kill_one_running_episode, daemon=True)
+    killer.start()
+    root = tmp_path / "gear-transport-demos"
+    record_recipe(load_recipe("gear-transport-demos"), root, episodes=2, settings=EnvSettings(resolution=32),
+                  progress=False, workers=2)
+    assert killed, "no worker was running an episode to kill"
+    assert_same_dataset(root, transport_demos)

@@ -3,6 +3,10 @@
 An episode depends on its seed only (the env and the selector are reseeded at every reset), so a seed gives the same
 episode in any worker; the results come back in the order of the seeds given, as from the serial loop. Workers are
 spawned, not forked: a forked copy of a process that already holds a renderer or torch's thread pool can hang.
+
+Past one machine, the same loops run on a Ray cluster (`use_ray`, the `--ray` flag): its workers are Ray actors
+(`ray.util.multiprocessing.Pool`, the same interface), and this process still gathers the results and writes every
+recording. An actor lost mid-episode (a node gone, a process killed) is restarted and its episode run again.
 """
 
 from __future__ import annotations
@@ -10,6 +14,8 @@ from __future__ import annotations
 import multiprocessing
 import os
 import signal
+import socket
+import threading
 from collections.abc import Callable, Iterable, Iterator
 from functools import partial
 from typing import Any
@@ -17,6 +23,60 @@ from typing import Any
 Runner = Callable[[Any], Any]  # one episode (or trial) from its seed, in a process that built what it needs once
 
 _runner: Runner | None = None
+_ray_address: str | None = None  # the Ray cluster the episode loops run on (see use_ray); None: this machine
+# What a Ray worker needs of this process's environment (a node's own environment may lack it).
+RAY_ENV = ("HF_HUB_OFFLINE", "HF_LEROBOT_HOME", "POLICY_COMPOSER_CACHE")
+
+
+class ClusterError(RuntimeError):
+    pass
+
+
+def use_ray(address: str) -> int:
+    """Run this process's episode loops on the Ray cluster at `address` (an address, "auto" for the cluster this
+    machine belongs to, or "local" for a new one on this machine); returns the cluster's CPUs. Every node needs the
+    project installed as here (scripts/setup.sh), at the same path."""
+    global _ray_address
+    try:
+        import ray
+    except ImportError:
+        raise ClusterError("--ray needs Ray, the project's `distributed` extra: pip install -e '.[distributed]' (or "
+                           "run scripts/setup.sh, which installs it)") from None
+    if not ray.is_initialized():
+        check_reachable(address)
+        if address == "local":  # Ray's workers run at niceness 15; on a machine shared with other jobs they starve
+            os.environ.setdefault("RAY_worker_niceness", "0")
+        env = {k: os.environ[k] for k in RAY_ENV if k in os.environ}
+        try:
+            ray.init(address=None if address == "local" else address, runtime_env={"env_vars": env},
+                     log_to_driver=False, configure_logging=False)
+        except ConnectionError as e:
+            raise ClusterError(f"no Ray cluster at {address!r} ({e}): start one with `ray start --head` and pass "
+                               "its address (or 'local' for one on this machine alone)") from None
+    _ray_address = address
+    return int(ray.cluster_resources().get("CPU", 1))
+
+
+def check_reachable(address: str, timeout: float = 10.0) -> None:
+    """A HOST:PORT address answers (Ray would wait minutes for one that does not, and say nothing)."""
+    host, _, port = address.rpartition(":")
+    if not host or not port.isdigit():
+        return  # "auto", "local" or a ray:// address: Ray itself finds the cluster or says why not
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout).close()
+    except OSError as e:
+        raise ClusterError(f"no Ray cluster answers at {address} ({e.strerror or e}): start its head with `ray start "
+                           "--head` and pass the address it prints") from None
+
+
+def stop_ray() -> None:
+    """Episode loops run on this machine again, and this process leaves the Ray cluster."""
+    global _ray_address
+    if _ray_address is not None:
+        import ray
+
+        ray.shutdown()
+        _ray_address = None
 
 
 def usable_cores() -> int:
@@ -42,12 +102,15 @@ def _die_with_parent(parent: int) -> None:
         os._exit(1)
 
 
-def _start(setup: Callable[[], Runner], parent: int) -> None:
+def _start(setup: Callable[[], Runner], parent: int | None) -> None:
+    """A worker's start: `parent` is the pid of the process it works for (None: a Ray actor, which Ray stops)."""
     global _runner
     import torch
 
-    _die_with_parent(parent)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's: it keeps what finished and stops the pool
+    if parent is not None:
+        _die_with_parent(parent)
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's: it keeps what finished, stops the pool
     torch.set_num_threads(1)  # one core per worker: the workers are the parallelism
     try:
         _runner = setup()
@@ -76,8 +139,14 @@ class Workers:
         return self  # started by the first batch: nothing is built for none
 
     def __exit__(self, *exc) -> None:
-        if self.pool is not None:
-            self.pool.terminate()  # an interrupted batch leaves nothing running
+        if self.pool is not None:  # an interrupted batch leaves nothing running
+            if _ray_address is None:
+                self.pool.terminate()
+            else:  # Pool.terminate asks each actor to exit first: a task their restart policy retries, with a warning
+                import ray
+
+                for actor, _ in self.pool._actor_pool:
+                    ray.kill(actor, no_restart=True)
         if self.runner is not None:
             getattr(self.runner, "close", lambda: None)()
 
@@ -90,10 +159,20 @@ class Workers:
             yield from ((item, self.runner(item)) for item in items)
         else:
             if self.pool is None:
-                context = multiprocessing.get_context("spawn")
-                self.pool = context.Pool(self.workers, initializer=_start,
-                                         initargs=(self.setup, os.getpid()))
+                self.pool = self._ray_pool() if _ray_address is not None else multiprocessing.get_context(
+                    "spawn").Pool(self.workers, initializer=_start, initargs=(self.setup, os.getpid()))
             yield from (self.pool.imap if ordered else self.pool.imap_unordered)(_run, items)
+
+
+    def _ray_pool(self):
+        """Ray actors, a core each, restarted when lost, with the episode they were running tried again."""
+        from ray.util.multiprocessing import Pool
+
+        try:
+            return Pool(self.workers, initializer=_start, initargs=(self.setup, None),
+                        ray_remote_args={"num_cpus": 1, "max_restarts": -1, "max_task_retries": -1})
+        except ValueError as e:  # more workers than the cluster has CPUs
+            raise ClusterError(f"{e}: pass --workers at most the cluster's CPUs") from None
 
 
 def run_episodes(setup: Callable[[], Runner], items: Iterable, workers: int = 1,

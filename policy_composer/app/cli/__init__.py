@@ -26,6 +26,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     from policy_composer.app.composition import RunError
+    from policy_composer.app.workers import ClusterError
     from policy_composer.data.features import DatasetError
     from policy_composer.data.interrupt import flag_interrupts
     from policy_composer.data.lock import FolderBusy
@@ -38,7 +39,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with flag_interrupts():  # a Ctrl-C swallowed by a library is raised again at the next episode or stage
             return args.func(args)
-    except (DatasetError, RecipeError, CheckpointError, LibraryError, RunError, FolderBusy, FileNotFoundError) as e:
+    except (DatasetError, RecipeError, CheckpointError, LibraryError, RunError, FolderBusy, FileNotFoundError,
+            ClusterError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     except OSError as e:  # the disk, not the program: one line, and the fix

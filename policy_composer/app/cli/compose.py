@@ -10,12 +10,12 @@ from policy_composer.app.cli.options import (
     WORLD,
     dataset_path,
     env_options,
+    episode_workers,
     lerobot_source,
     library_sources,
     model_options,
     workers_option,
 )
-from policy_composer.app.workers import usable_cores
 from policy_composer.selector.configuration import GOAL_SCORES, ComposeConfig
 
 
@@ -27,7 +27,7 @@ def cmd_compose(args: argparse.Namespace) -> int:
                                list(range(args.seed, args.seed + args.episodes)),
                                Path(args.out), videos=args.videos, resolution=args.resolution,
                                clearance_mm=args.clearance, knock_out_step=args.knock_out_step, resume=args.resume,
-                               workers=args.workers or usable_cores(), goal_score=args.goal_score)
+                               workers=episode_workers(args), goal_score=args.goal_score)
     ok = sum(e.success for e in episodes)
     print(f"composed: {ok}/{len(episodes)} full-task successes -> {Path(args.out) / 'summary.md'}")
     return 0

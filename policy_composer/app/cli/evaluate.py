@@ -11,13 +11,13 @@ from policy_composer.app.cli.options import (
     WORLD,
     dataset_path,
     env_options,
+    episode_workers,
     library_sources,
     make_env,
     make_expert,
     model_options,
     workers_option,
 )
-from policy_composer.app.workers import usable_cores
 from policy_composer.policies.registry import kinds
 from policy_composer.tasks.spec import CAMERA_NAMES, SUBTASK_COLUMNS
 
@@ -50,7 +50,7 @@ def cmd_evaluate_controllers(args: argparse.Namespace) -> int:
     from policy_composer.app.controller_table import evaluate_table, write_table
 
     rows = evaluate_table([k for k in args.kinds.split(",") if k], library_sources(args), args.trials, args.seed,
-                          args.resolution, args.clearance, workers=args.workers or usable_cores(),
+                          args.resolution, args.clearance, workers=episode_workers(args),
                           columns=args.subtasks)
     for kind, row in rows.items():
         print(f"{kind}: " + ", ".join(f"{c} {cell}" for c, cell in row.items()))

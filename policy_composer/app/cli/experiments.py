@@ -8,16 +8,15 @@ import time
 from pathlib import Path
 
 from policy_composer.app.arguments import at_least
-from policy_composer.app.cli.options import env_options, make_env, make_expert, workers_option
+from policy_composer.app.cli.options import env_options, episode_workers, make_env, make_expert, workers_option
 from policy_composer.app.demo import PROFILES, run_demo
-from policy_composer.app.workers import usable_cores
 from policy_composer.data import atomic
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
     """The main job: the whole paper, stage by stage (finished stages are reused), then the report."""
     try:
-        _, report = run_demo(args.profile, args.out, args.workers or usable_cores())
+        _, report = run_demo(args.profile, args.out, episode_workers(args))
     except KeyboardInterrupt:
         print(f"\ninterrupted: finished stages (and the episodes of an unfinished recording or composed run) are kept "
               f"in {Path(args.out) / 'pipeline'}; run the same command again to resume", file=sys.stderr)

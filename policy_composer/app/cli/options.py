@@ -93,7 +93,20 @@ def env_options(p: argparse.ArgumentParser, grasp: bool = True) -> None:
 def workers_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=at_least(1), default=None,
                    help="processes running episodes side by side, each with its own env (default: the usable "
-                        "cores); the results are the same for any number")
+                        "cores, or the Ray cluster's); the results are the same for any number")
+    p.add_argument("--ray", metavar="ADDRESS", default=None,
+                   help="run the episodes on the Ray cluster at ADDRESS ('auto': the one this machine belongs to; "
+                        "'local': a new one here); every node needs the project installed at the same path. The "
+                        "results are the same as on this machine")
+
+
+def episode_workers(args: argparse.Namespace) -> int:
+    """The number of episode workers that `workers_option`'s flags ask for; with --ray, the episodes run on that
+    cluster from now on."""
+    from policy_composer.app.workers import usable_cores, use_ray
+
+    cores = usable_cores() if args.ray is None else use_ray(args.ray)
+    return args.workers or cores
 
 
 def model_options(p: argparse.ArgumentParser) -> None:

@@ -7,8 +7,7 @@ import sys
 from pathlib import Path
 
 from policy_composer.app.arguments import at_least
-from policy_composer.app.cli.options import env_options, library_sources, model_options, workers_option
-from policy_composer.app.workers import usable_cores
+from policy_composer.app.cli.options import env_options, episode_workers, library_sources, model_options, workers_option
 from policy_composer.data.recipes import available_recipes
 from policy_composer.tasks.spec import EnvSettings
 
@@ -37,7 +36,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     settings = replace(EnvSettings(**previous), **given) if previous else EnvSettings(**given)
     try:
         record_recipe(recipe, root, episodes=args.episodes, seed=args.seed, resume=args.resume, settings=settings,
-                      sources=sources, workers=args.workers or usable_cores())
+                      sources=sources, workers=episode_workers(args))
     except KeyboardInterrupt:
         print(f"\ninterrupted: every finished episode is saved in {root}; continue with --resume", file=sys.stderr)
         return 130
