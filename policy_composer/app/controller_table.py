@@ -70,18 +70,18 @@ def _expert_until(env, seed: int, subtask: str, max_steps: int):
     env.reset(seed=seed)
     expert = GearAssemblyExpert(env, ExpertConfig(closed_loop=False))
     expert.reset(seed)
-    return expert_until(env, expert, START_PHASE[subtask], max_steps)
+    return env.unwrapped.observe() if expert_until(env, expert, START_PHASE[subtask], max_steps) else None
 
 
-def expert_until(env, expert, phase: str, max_steps: int):
-    """Step the env with `expert`'s commands until the expert is in `phase`; the observation there (None if it
-    never gets there). Nothing renders on the way: the expert reads the scene, not the cameras."""
+def expert_until(env, expert, phase: str, max_steps: int) -> bool:
+    """Step the env with `expert`'s commands until the expert is in `phase` (False if it never gets there). Nothing
+    renders on the way: the expert reads the scene, not the cameras."""
     u = env.unwrapped
     for _ in range(max_steps):
         if expert.phase == phase:
-            return u.observe()
+            return True
         u.step_unobserved(u.flat_to_dict_action(expert.act()))
-    return None
+    return False
 
 
 @dataclass(frozen=True)

@@ -84,7 +84,7 @@ PROFILES = {
                                "models of an earlier run of this profile (measured 2026-12-02)"),
     "paper": Profile("paper", resolution=128, image_size=64, insertion_demos=50, transport_demos=50,
                      full_task_demos=8, train_demos=5, dmp_episodes=5, rollouts=20, cnn_epochs=200,
-                     dagger_episodes=50, dagger_epochs=120, dagger_rounds=3,
+                     dagger_episodes=50, dagger_epochs=120, dagger_rounds=3, dagger_subtasks=("move", "insert"),
                      vae_epochs=30, dynamics_epochs=60, goal_epochs=60,
                      table_trials=10, compose_episodes=50, knockout_episodes=10, mdp_episodes_19=1000,
                      mdp_episodes_100=100,

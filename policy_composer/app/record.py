@@ -200,7 +200,7 @@ class EpisodeRecorder:
         expert.reset(seed)
         phase = START_PHASE.get(controller.subtask.name)
         if phase is not None:  # the expert takes the arm, unrecorded, to where the controller's subtask starts
-            if expert_until(buffer, expert, phase, episode_limit(buffer)) is None:
+            if not expert_until(buffer, expert, phase, episode_limit(buffer)):
                 return None
             obs = buffer.observe()
         if not controller.can_start(obs):  # a start outside its initiation set, which no selector would run it from
