@@ -227,8 +227,9 @@ class EpisodeRecorder:
         from policy_composer.policies.arm import run_activation
 
         buffer = self.buffer
-        start_state(buffer, seed, controller.subtask.name)
-        obs = buffer.observe()
+        buffer.recording = False
+        obs = start_state(buffer, seed, controller.subtask.name)
+        buffer.recording = True
         buffer.controller = controller.name
         run_activation(buffer, controller, obs, seed)
         if buffer.buffered_frames == 0:

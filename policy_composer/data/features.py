@@ -21,9 +21,9 @@ def image_key(camera: str) -> str:
     return f"observation.images.{camera}"
 
 
-# Bump when what a recording holds changes (dataset_features, or what a frame records): the main job's recording
-# stages key on it, so no recording without a column the models need, or with frames recorded the old way, is reused.
-FEATURES_REVISION = 3
+# Bump when dataset_features changes: the main job's recording stages key on it, so no recording without a column
+# the models need is reused.
+FEATURES_REVISION = 2
 
 
 def dataset_features(cameras: tuple[str, ...] = CAMERA_NAMES, resolution: int = 128) -> dict[str, dict]:
