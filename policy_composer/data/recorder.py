@@ -91,17 +91,18 @@ class FrameBuffer(gym.Wrapper):
     def reset(self, **kwargs):
         obs, info = self.env.reset(**kwargs)
         self._frames = []
-        self._obs = obs
-        self._stage, self._offset = int(self.env.unwrapped.evaluate()["stage"][0]), _gear_offset(self.env.unwrapped)
-        return obs, info
+        return self._starting_from(obs), info
 
     def observe(self):
         """The env's observation now, from which the next frame is recorded: after steps taken around the buffer
         (unrecorded and unrendered, say by the expert bringing the arm to where a subtask starts)."""
+        return self._starting_from(self.env.unwrapped.observe())
+
+    def _starting_from(self, obs):
+        """`obs` is the state the next frame records, with the scene's stage and gear offset there."""
         u = self.env.unwrapped
-        self._obs = u.observe()
-        self._stage, self._offset = int(u.evaluate()["stage"][0]), _gear_offset(u)
-        return self._obs
+        self._obs, self._stage, self._offset = obs, int(u.evaluate()["stage"][0]), _gear_offset(u)
+        return obs
 
     def step(self, action, label=None):
         """Step with `action`; the frame records `label` as its action if given (DART: the expert's own command,
