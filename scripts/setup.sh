@@ -80,10 +80,10 @@ python_packages() {
   fi
   "$VENV/bin/python" -m pip install -q --upgrade pip uv
   log "installing Python packages into .venv (first time: several minutes, torch is large)"
-  # The project with Ray (the tests start a local cluster), and its LeRobot env plugin (lerobot-eval
-  # --env.type=gear_assembly).
+  # The project with Ray (the tests start a local cluster), and its LeRobot plugins: the env (lerobot-eval
+  # --env.type=gear_assembly) and the paper's policy (lerobot-train --policy.type=cnn_mdn).
   VIRTUAL_ENV="$VENV" "$VENV/bin/uv" pip install --python "$VENV/bin/python" -e ".[test,distributed]" \
-    -e plugins/lerobot_env_gear_assembly
+    -e plugins/lerobot_env_gear_assembly -e plugins/lerobot_policy_cnn_mdn
   # Bytecode compiled once: each new process (a worker, a subprocess) then starts seconds sooner, also where
   # PYTHONDONTWRITEBYTECODE keeps Python from caching what it compiles at import.
   log "compiling the installed packages' bytecode"

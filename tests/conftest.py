@@ -97,12 +97,12 @@ def controller_rollouts(tmp_path_factory):
     return shared(tmp_path_factory, "rollouts", record) / "rollouts"
 
 
-def lerobot_train(insertion_demos, out: Path, policy: str, args: tuple[str, ...] = ()):
-    """lerobot-train's `policy`, two steps on the insertion demos into `out`/run; its log kept in `out`/train.json."""
-    cmd = [str(Path(sys.executable).parent / "lerobot-train"), f"--dataset.repo_id=local/{insertion_demos.name}",
-           f"--dataset.root={insertion_demos}", f"--policy.type={policy}", "--policy.pretrained_backbone_weights=null",
-           "--policy.push_to_hub=false", "--policy.device=cpu", "--steps=2", "--batch_size=2", "--num_workers=0",
-           f"--output_dir={out / 'run'}", "--wandb.enable=false", "--log_freq=1", "--save_freq=2", *args]
+def lerobot_train(dataset: Path, out: Path, policy: str, args: tuple[str, ...] = ()):
+    """lerobot-train's `policy`, two steps on `dataset` into `out`/run; its log kept in `out`/train.json."""
+    cmd = [str(Path(sys.executable).parent / "lerobot-train"), f"--dataset.repo_id=local/{dataset.name}",
+           f"--dataset.root={dataset}", f"--policy.type={policy}", "--policy.push_to_hub=false",
+           "--policy.device=cpu", "--steps=2", "--batch_size=2", "--num_workers=0", f"--output_dir={out / 'run'}",
+           "--wandb.enable=false", "--log_freq=1", "--save_freq=2", *args]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=600,
                          env={**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"})
     (out / "train.json").write_text(json.dumps({"returncode": res.returncode, "stdout": res.stdout,
@@ -118,7 +118,8 @@ def trained(out: Path) -> tuple[Path, subprocess.CompletedProcess]:
 
 @pytest.fixture(scope="session")
 def act_checkpoint(insertion_demos, tmp_path_factory):
-    return trained(shared(tmp_path_factory, "act", partial(lerobot_train, insertion_demos, policy="act")))
+    train = partial(lerobot_train, insertion_demos, policy="act", args=("--policy.pretrained_backbone_weights=null",))
+    return trained(shared(tmp_path_factory, "act", train))
 
 
 @pytest.fixture(scope="session")
@@ -126,11 +127,27 @@ def diffusion_checkpoint(insertion_demos, tmp_path_factory):
     """Diffusion Policy at docs/lerobot-policies.md's settings, shrunk: two observation steps in, chunks of 8 actions
     out."""
     train = partial(lerobot_train, insertion_demos, policy="diffusion", args=(
-        "--policy.use_group_norm=true", "--policy.use_separate_rgb_encoder_per_camera=false",
-        "--policy.crop_shape=[56,56]", "--policy.n_obs_steps=2", "--policy.horizon=16", "--policy.n_action_steps=8",
+        "--policy.pretrained_backbone_weights=null", "--policy.use_group_norm=true",
+        "--policy.use_separate_rgb_encoder_per_camera=false", "--policy.crop_shape=[56,56]", "--policy.n_obs_steps=2",
+        "--policy.horizon=16", "--policy.n_action_steps=8",
         "--policy.drop_n_last_frames=7", "--policy.down_dims=[16,32]", "--policy.noise_scheduler_type=DDIM",
         "--policy.num_inference_steps=2"))
     return trained(shared(tmp_path_factory, "diffusion", train))
+
+
+@pytest.fixture(scope="session")
+def cnn_mdn_checkpoint(insertion_demos, tmp_path_factory):
+    """The paper's policy through lerobot-train (the `lerobot_policy_cnn_mdn` plugin), as the project trains its
+    insertion: the left forearm camera's insertion window, the gripper's width, the gear-offset auxiliary loss. Its
+    binary action is named: in two episodes, the right arm's joints (still in each) take two values too."""
+    from policy_composer.tasks.spec import INSERTION_WINDOWS
+
+    window = ",".join(map(str, INSERTION_WINDOWS["left_forearm"]))
+    train = partial(lerobot_train, insertion_demos, policy="cnn_mdn", args=(
+        "--policy.camera=left_forearm", f"--policy.window=[{window}]", "--policy.state_indices=[7]",
+        "--policy.binary_actions=[7]", "--policy.auxiliary_feature=gear_offset", "--policy.num_mixtures=2",
+        "--policy.hidden_dim=32"))
+    return trained(shared(tmp_path_factory, "cnn_mdn", train))
 
 
 def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:

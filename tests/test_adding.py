@@ -17,8 +17,11 @@ from policy_composer.selector.train import train_goal_scores, train_world_model
 from policy_composer.selector.world_model import GearWorldModel
 
 
-def test_a_lerobot_checkpoint_joins_the_library(act_checkpoint, controller_rollouts, full_task_demos, tmp_path):
-    checkpoint, res = act_checkpoint
+@pytest.mark.parametrize("policy", ["act", "cnn_mdn"])
+def test_a_lerobot_checkpoint_joins_the_library(policy, controller_rollouts, full_task_demos, tmp_path, request):
+    """ACT's checkpoint, and the paper's policy trained by lerobot-train through its plugin."""
+    checkpoint, res = request.getfixturevalue(f"{policy}_checkpoint")
+    name = f"{policy}_insert"
     assert res.returncode == 0, (res.stdout + res.stderr)[-2000:]
     rollouts, models = tmp_path / "rollouts", tmp_path / "world"
     shutil.copytree(controller_rollouts, rollouts)
@@ -26,7 +29,7 @@ def test_a_lerobot_checkpoint_joins_the_library(act_checkpoint, controller_rollo
                       DynamicsConfig(hidden_dim=32, num_mixtures=2, frame_skip=3, epochs=2), progress=False)
     train_goal_scores(full_task_demos, models, ("left_forearm",),
                       GoalScoreConfig(image_size=32, hidden_dim=32, num_mixtures=2, epochs=2), progress=False)
-    source = LeRobotSource(str(checkpoint), "insert", "act_insert")
+    source = LeRobotSource(str(checkpoint), "insert", name)
 
     with pytest.raises(LibraryError, match="'mp_insert' is already a controller of the library"):
         add_lerobot_controller(LeRobotSource(str(checkpoint), "insert", "mp_insert"), rollouts, full_task_demos,
@@ -36,15 +39,15 @@ def test_a_lerobot_checkpoint_joins_the_library(act_checkpoint, controller_rollo
 
     added = add_lerobot_controller(source, rollouts, full_task_demos, models, episodes=1, trials=1, seed=200,
                                    progress=False)
-    assert added["controller"] == "act_insert" and added["cell"].trials == 1
+    assert added["controller"] == name and added["cell"].trials == 1
     sidecar = json.loads((rollouts / "meta" / "policy_composer.json").read_text())
-    assert sidecar["controllers"] == ["mp_pick", "mp_insert", "act_insert"]  # the library's rollouts are kept
-    assert [e["controller_name"] for e in sidecar["episodes"]].count("act_insert") == 1
+    assert sidecar["controllers"] == ["mp_pick", "mp_insert", name]  # the library's rollouts are kept
+    assert [e["controller_name"] for e in sidecar["episodes"]].count(name) == 1
     world = GearWorldModel.load(models)
-    assert set(world.dynamics) == {"mp_pick", "mp_insert", "act_insert"}
-    assert world.dynamics["act_insert"].config.frame_skip == 3  # one look-ahead for every controller
+    assert set(world.dynamics) == {"mp_pick", "mp_insert", name}
+    assert world.dynamics[name].config.frame_skip == 3  # one look-ahead for every controller
     decision = world.selector(horizon=2, samples=2, seed=0).decide(torch.zeros(1, 8))
-    assert torch.isfinite(decision.scores).all() and "act_insert" in decision.names
+    assert torch.isfinite(decision.scores).all() and name in decision.names
 
 
 def test_a_lerobot_checkpoint_gets_its_own_row_in_table_one(act_checkpoint, tmp_path):

@@ -280,15 +280,19 @@ def test_cnn_controller_acts_from_pixels_within_limits(insertion_demos, rgb_env,
     no_camera.close()
 
 
-@pytest.mark.parametrize("policy", ["act", "diffusion"])
+@pytest.mark.parametrize("policy", ["act", "diffusion", "cnn_mdn"])
 def test_lerobot_policy_runs_as_a_controller(policy, rgb_env, request):
-    """ACT and Diffusion Policy run as controllers: Diffusion Policy's observation queue (two steps in) and action
-    chunks (8 out) carry over from step to step, and start afresh at the next activation."""
+    """ACT, Diffusion Policy and the paper's policy through its LeRobot plugin run as controllers: Diffusion
+    Policy's observation queue (two steps in) and action chunks (8 out) carry over from step to step, and start
+    afresh at the next activation."""
     checkpoint, res = request.getfixturevalue(f"{policy}_checkpoint")
     assert res.returncode == 0, (res.stdout + res.stderr)[-2000:]
     controller = LeRobotPolicyController(rgb_env, checkpoint, max_steps=3)
-    assert controller.name == f"{policy}_insert" and "sensor_data.head.rgb" in controller.obs_keys
-    assert lerobot_label(checkpoint) == {"act": "ACT (LeRobot)", "diffusion": "Diffusion Policy (LeRobot)"}[policy]
+    assert controller.name == f"{policy}_insert" and "sensor_data.left_forearm.rgb" in controller.obs_keys
+    # cnn_mdn reads the one camera it was trained on; the others read every camera of the dataset
+    assert ("sensor_data.head.rgb" in controller.obs_keys) == (policy != "cnn_mdn")
+    assert lerobot_label(checkpoint) == {"act": "ACT (LeRobot)", "diffusion": "Diffusion Policy (LeRobot)",
+                                         "cnn_mdn": "CNN + MDN (LeRobot)"}[policy]
     obs = start_state(rgb_env, 3, "insert")
     controller.start(obs)
     action = controller.act(obs)

@@ -87,3 +87,8 @@ class CNNPolicyConfig(TrainingConfig):
     @property
     def action_dim(self) -> int:
         return ACTION_SPACES[self.action_space]
+
+    @property
+    def binary_actions(self) -> tuple[int, ...]:
+        """The gripper command, last in both action spaces (see CNNPolicy)."""
+        return (self.action_dim - 1,)

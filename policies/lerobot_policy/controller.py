@@ -1,4 +1,5 @@
-"""Any LeRobot policy checkpoint (ACT, diffusion, ... trained with `lerobot-train` on our datasets) as a controller.
+"""Any LeRobot policy checkpoint (ACT, Diffusion Policy, the paper's own `cnn_mdn`, ... trained with `lerobot-train`
+on our datasets) as a controller.
 
 The user gives the initiation set and termination by naming the subtask the policy was trained for. The
 checkpoint's own processors normalise inputs and outputs, as in `lerobot-eval`. Its input features must be
@@ -8,6 +9,7 @@ applied to the left arm only (the right arm holds), like every controller of the
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +20,17 @@ from policy_composer.learning.checkpoint import check_finite
 from policy_composer.policies.subtasks import SUBTASKS, LearnedController, Subtask, check_camera
 from policy_composer.tasks.spec import ACTION_NAMES, STATE_NAMES
 
-POLICY_NAMES = {"act": "ACT", "diffusion": "Diffusion Policy", "pi0": "pi0", "smolvla": "SmolVLA", "vqbet": "VQ-BeT"}
+POLICY_NAMES = {"act": "ACT", "diffusion": "Diffusion Policy", "pi0": "pi0", "smolvla": "SmolVLA", "vqbet": "VQ-BeT",
+                "cnn_mdn": "CNN + MDN"}
+
+
+@functools.cache
+def register_plugins() -> None:
+    """Import the installed LeRobot plugins (`lerobot_policy_*` and the like), as LeRobot's scripts do at start-up,
+    so that a checkpoint of a plugin's policy type (the paper's `cnn_mdn`) loads."""
+    from lerobot.utils.import_utils import register_third_party_plugins
+
+    register_third_party_plugins()
 
 
 def lerobot_cameras(path: str | Path) -> tuple[str, ...]:
@@ -46,6 +58,7 @@ class LeRobotPolicyController(LearnedController):
         from lerobot.configs.policies import PreTrainedConfig
         from lerobot.policies.factory import get_policy_class, make_pre_post_processors
 
+        register_plugins()
         path = Path(pretrained_path)
         if not (path / "config.json").is_file():
             raise FileNotFoundError(f"{path} is not a LeRobot policy checkpoint (no config.json); pass the "
