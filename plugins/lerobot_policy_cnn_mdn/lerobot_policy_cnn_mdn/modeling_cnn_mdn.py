@@ -40,6 +40,10 @@ class CNNMDNPolicy(PreTrainedPolicy):
         self.model = CNNPolicy(config)
         if config.auxiliary_feature and dataset_stats is not None:  # the auxiliary target is not LeRobot-normalised
             stats = dataset_stats[config.auxiliary_feature]
+            if np.asarray(stats["mean"]).size != 3:
+                raise ValueError(f"--policy.auxiliary_feature={config.auxiliary_feature} has "
+                                 f"{np.asarray(stats['mean']).size} values; the auxiliary head regresses 3 (an "
+                                 "offset such as gear_offset)")
             self.model.offset_mean.copy_(torch.as_tensor(np.asarray(stats["mean"]), dtype=torch.float32))
             self.model.offset_std.copy_(torch.as_tensor(np.asarray(stats["std"]), dtype=torch.float32).clamp_min(1e-5))
 
