@@ -97,14 +97,18 @@ def controller_rollouts(tmp_path_factory):
     return shared(tmp_path_factory, "rollouts", record) / "rollouts"
 
 
+def lerobot(script: str, *args: str, timeout: int = 900) -> subprocess.CompletedProcess:
+    """One of LeRobot's commands (`lerobot-train`, `lerobot-eval`) from this environment, offline, one thread."""
+    return subprocess.run([str(Path(sys.executable).parent / script), *args], capture_output=True, text=True,
+                          timeout=timeout, env={**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"})
+
+
 def lerobot_train(dataset: Path, out: Path, policy: str, args: tuple[str, ...] = ()):
     """lerobot-train's `policy`, two steps on `dataset` into `out`/run; its log kept in `out`/train.json."""
-    cmd = [str(Path(sys.executable).parent / "lerobot-train"), f"--dataset.repo_id=local/{dataset.name}",
-           f"--dataset.root={dataset}", f"--policy.type={policy}", "--policy.push_to_hub=false",
-           "--policy.device=cpu", "--steps=2", "--batch_size=2", "--num_workers=0", f"--output_dir={out / 'run'}",
-           "--wandb.enable=false", "--log_freq=1", "--save_freq=2", *args]
-    res = subprocess.run(cmd, capture_output=True, text=True, timeout=600,
-                         env={**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"})
+    res = lerobot("lerobot-train", f"--dataset.repo_id=local/{dataset.name}", f"--dataset.root={dataset}",
+                  f"--policy.type={policy}", "--policy.push_to_hub=false", "--policy.device=cpu", "--steps=2",
+                  "--batch_size=2", "--num_workers=0", f"--output_dir={out / 'run'}", "--wandb.enable=false",
+                  "--log_freq=1", "--save_freq=2", *args, timeout=600)
     (out / "train.json").write_text(json.dumps({"returncode": res.returncode, "stdout": res.stdout,
                                                 "stderr": res.stderr}))
 

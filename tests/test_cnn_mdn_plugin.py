@@ -13,12 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from conftest import lerobot_train, trained
-
-
-def lerobot(script: str, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([str(Path(sys.executable).parent / script), *args], capture_output=True, text=True,
-                          timeout=900, env={**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"})
+from conftest import lerobot, lerobot_train, trained
 
 
 def test_lerobot_finds_the_policy_by_its_distributions_name():

@@ -12,7 +12,7 @@ from pathlib import Path
 import av
 import numpy as np
 import pytest
-from conftest import run_cli
+from conftest import lerobot, run_cli
 
 from policy_composer.tasks.lerobot_env import TASKS, GearAssemblyLeRobotEnv
 from policy_composer.tasks.spec import CAMERA_NAMES
@@ -63,12 +63,9 @@ def test_lerobot_eval_runs_a_checkpoint_trained_on_our_dataset(act_checkpoint, t
     checkpoint, trained = act_checkpoint
     assert trained.returncode == 0, (trained.stdout + trained.stderr)[-2000:]
     out = tmp_path / "eval"
-    cmd = [str(Path(sys.executable).parent / "lerobot-eval"), f"--policy.path={checkpoint}", "--policy.device=cpu",
-           "--env.type=gear_assembly", "--env.task=insert", "--env.resolution=64", "--env.episode_length=25",
-           "--eval.n_episodes=2", "--eval.batch_size=2", "--eval.use_async_envs=false",
-           f"--output_dir={out}", "--seed=500"]
-    res = subprocess.run(cmd, capture_output=True, text=True, timeout=900,
-                         env={**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"})
+    res = lerobot("lerobot-eval", f"--policy.path={checkpoint}", "--policy.device=cpu", "--env.type=gear_assembly",
+                  "--env.task=insert", "--env.resolution=64", "--env.episode_length=25", "--eval.n_episodes=2",
+                  "--eval.batch_size=2", "--eval.use_async_envs=false", f"--output_dir={out}", "--seed=500")
     assert res.returncode == 0, (res.stdout + res.stderr)[-3000:]
     info = json.loads((out / "eval_info.json").read_text())
     (task,) = info["per_task"]
