@@ -14,12 +14,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import socket
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from policy_composer.app.workers import ray_head
 
 BIN = Path(sys.executable).parent
 
@@ -31,12 +32,6 @@ def compose(args: argparse.Namespace, out: Path, *extra: str) -> float:
                     "--episodes", str(args.episodes), "--workers", str(args.workers), "--out", str(out), *extra],
                    check=True, stdout=subprocess.DEVNULL)
     return time.perf_counter() - t0
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def main() -> None:
@@ -52,24 +47,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         local = compose(args, tmp / "local")
-        port = free_port()
-        head = subprocess.Popen([str(BIN / "ray"), "start", "--head", "--block", "--node-ip-address=127.0.0.1",
-                                 f"--port={port}", f"--num-cpus={args.workers}", "--include-dashboard=false",
-                                 "--disable-usage-stats", f"--temp-dir={tmp / 'ray'}"],
-                                env={**os.environ, "RAY_worker_niceness": "0"}, stdout=subprocess.DEVNULL,
-                                stderr=subprocess.DEVNULL, start_new_session=True)
-        try:
-            while head.poll() is None:  # the head's start, not counted
-                try:
-                    socket.create_connection(("127.0.0.1", port), timeout=1).close()
-                    break
-                except OSError:
-                    time.sleep(1)
-            time.sleep(5)  # the raylet registers after the port opens
-            ray = compose(args, tmp / "ray", "--ray", f"127.0.0.1:{port}")
-        finally:
-            head.terminate()
-            head.wait(120)
+        with ray_head(args.workers, tmp / "ray-head") as address:  # the head's start is not counted
+            time.sleep(5)  # the raylet registers a few seconds after the port opens
+            ray = compose(args, tmp / "ray", "--ray", address)
         same = (tmp / "ray" / "episodes.jsonl").read_text() == (tmp / "local" / "episodes.jsonl").read_text()
         print(json.dumps({"episodes": args.episodes, "workers": args.workers, "local_pool_s": round(local, 1),
                           "ray_s": round(ray, 1), "overhead": f"{ray / local - 1:+.1%}", "same_episodes": same}))

@@ -3,14 +3,8 @@
 from __future__ import annotations
 
 import json
-import os
-import signal
-import socket
-import subprocess
-import sys
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import psutil
@@ -18,7 +12,7 @@ import pytest
 import torch
 
 from policy_composer.app.controller_table import evaluate_rows
-from policy_composer.app.workers import ClusterError, run_episodes, stop_ray, use_ray
+from policy_composer.app.workers import ClusterError, ray_head, run_episodes, stop_ray, use_ray
 from policy_composer.data.features import open_dataset
 from policy_composer.policies.library import LibrarySources
 
@@ -90,35 +84,20 @@ def assert_same_dataset(root, serial) -> None:
 def ray_cluster(tmp_path_factory):
     """A Ray head on 127.0.0.1 with 2 CPUs, this module's alone; this process runs its episode loops there."""
     ray = pytest.importorskip("ray", reason="Ray is the distributed extra (scripts/setup.sh installs it)")
-    port = free_port()
-    env = {**os.environ, "RAY_worker_niceness": "0"}  # as fast as the other jobs on a shared machine
-    head = subprocess.Popen([str(Path(sys.executable).parent / "ray"), "start", "--head", "--block",
-                             "--node-ip-address=127.0.0.1", f"--port={port}", "--num-cpus=2",
-                             "--include-dashboard=false", "--disable-usage-stats",
-                             f"--temp-dir={tmp_path_factory.mktemp('ray')}"],
-                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    try:
-        address = f"127.0.0.1:{port}"
-        for _ in range(120):  # the head takes a few seconds (more on a busy machine)
-            try:
-                assert use_ray(address) == 2
-                break
-            except ClusterError:
-                time.sleep(1)
-        else:
-            pytest.fail(f"the Ray head at {address} did not start")
-        yield address
-    finally:
-        stop_ray()
-        os.killpg(head.pid, signal.SIGTERM)
-        head.wait(60)
+    with ray_head(2, tmp_path_factory.mktemp("ray")) as address:
+        try:
+            for _ in range(120):  # the raylet registers a few seconds after the port opens (more on a busy machine)
+                try:
+                    assert use_ray(address) == 2
+                    break
+                except ClusterError:
+                    time.sleep(1)
+            else:
+                pytest.fail(f"the Ray head at {address} did not start")
+            yield address
+        finally:
+            stop_ray()
     assert not ray.is_initialized()
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.mark.timeout(900)

@@ -15,9 +15,14 @@ import multiprocessing
 import os
 import signal
 import socket
+import subprocess
+import sys
 import threading
+import time
 from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from functools import partial
+from pathlib import Path
 from typing import Any
 
 Runner = Callable[[Any], Any]  # one episode (or trial) from its seed, in a process that built what it needs once
@@ -67,6 +72,37 @@ def check_reachable(address: str, timeout: float = 10.0) -> None:
     except OSError as e:
         raise ClusterError(f"no Ray cluster answers at {address} ({e.strerror or e}): start its head with `ray start "
                            "--head` and pass the address it prints") from None
+
+
+@contextmanager
+def ray_head(cpus: int, temp_dir: str | Path, timeout: float = 120.0) -> Iterator[str]:
+    """A Ray head on 127.0.0.1 with `cpus` CPUs around the block, for tests and benchmarks; yields its address once
+    it accepts connections (its raylet registers a few seconds later: `use_ray` says when). Its workers run at
+    niceness 0, as local workers do."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    head = subprocess.Popen([str(Path(sys.executable).parent / "ray"), "start", "--head", "--block",
+                             "--node-ip-address=127.0.0.1", f"--port={port}", f"--num-cpus={cpus}",
+                             "--include-dashboard=false", "--disable-usage-stats", f"--temp-dir={temp_dir}"],
+                            env={**os.environ, "RAY_worker_niceness": "0"}, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+    address, deadline = f"127.0.0.1:{port}", time.monotonic() + timeout
+    try:
+        while True:
+            if head.poll() is not None:
+                raise ClusterError(f"the Ray head exited with {head.returncode} before it answered at {address}")
+            try:
+                check_reachable(address, timeout=1)
+                break
+            except ClusterError:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(1)
+        yield address
+    finally:
+        os.killpg(head.pid, signal.SIGTERM)
+        head.wait(60)
 
 
 def stop_ray() -> None:
