@@ -75,11 +75,13 @@ PROFILES = {
                            " hold at this size (the MP row needs no training; the MDP runs 1000 episodes, and 30 in "
                            "each of the 9x9 noise cells). The CNN policies (20 demonstrations each, 80 epochs) are "
                            "far below the paper's sizes (and without DAgger: at 64 px the insertion seated none of "
-                           "20 rollouts, and a round did not change its Table I cell), and Table I's cells have 3 "
-                           "trials, so the CNN row shows that the pipeline works, not how well: run `--profile "
-                           "paper` for that. So the paper's experiment (the straight-down insertions) does not hold "
-                           "here either: it needs a CNN insertion that seats the gear. The composed row's 10 seeds "
-                           "show the selector at work; its rate at this size needs more seeds than this job runs.",
+                           "20 rollouts, and a round did not change its Table I cell; with 128 px cameras it seated "
+                           "0/20 too, since what it lacks is training, about 20 minutes more of it), and Table I's "
+                           "cells have 3 trials, so the CNN row shows that the pipeline works, not how well: run "
+                           "`--profile paper` for that. So the paper's experiment (the straight-down insertions) does "
+                           "not hold here either: it needs a CNN insertion that seats the gear. The composed row's "
+                           "10 seeds show the selector at work; its rate at this size needs more seeds than this job "
+                           "runs.",
                      elsewhere="the composed row on 100 held-out seeds, and recovery from 20 knock-outs, with the "
                                "models of an earlier run of this profile (measured 2026-12-02)"),
     "paper": Profile("paper", resolution=128, image_size=64, insertion_demos=50, transport_demos=50,
