@@ -119,6 +119,50 @@ def test_a_stage_reading_a_missing_stage_is_refused(tmp_path):
         run_stages([Stage("train", "train", {}, lambda out, i: {}, inputs=("record",))], tmp_path)
 
 
+def test_an_interrupted_cnn_training_stage_keeps_the_policies_it_finished(insertion_demos, transport_demos,
+                                                                         tmp_path, monkeypatch):
+    from policy_composer.app.demo import _train_cnn
+    from policy_composer.learning.checkpoint import weights_id
+    from policy_composer.policies.cnn import train
+    from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
+
+    inputs = {}
+    for stage, dataset in (("insertion-demos", insertion_demos), ("transport-demos", transport_demos)):
+        (tmp_path / stage).mkdir()
+        (tmp_path / stage / "dataset").symlink_to(dataset)
+        inputs[stage] = tmp_path / stage
+    configs = {s: CNNPolicyConfig(subtask=s, epochs=1, num_mixtures=2, image_size=32, batch_size=32)
+               for s in ("move", "insert")}
+    real, trained = train.train_cnn_policy, []
+
+    def interrupted_at_the_insertion(root, config, **kwargs):
+        if config.subtask == "insert":
+            raise KeyboardInterrupt
+        trained.append(config.subtask)
+        return real(root, config, **kwargs)
+
+    out = tmp_path / "bc-cnn"
+    monkeypatch.setattr(train, "train_cnn_policy", interrupted_at_the_insertion)
+    with pytest.raises(KeyboardInterrupt):
+        _train_cnn(out, inputs, configs)
+    move = weights_id(out / "cnn" / "move")
+    assert trained == ["move"] and not (out / "cnn" / "insert").exists()
+
+    def counted(root, config, **kwargs):
+        trained.append(config.subtask)
+        return real(root, config, **kwargs)
+
+    monkeypatch.setattr(train, "train_cnn_policy", counted)
+    facts = _train_cnn(out, inputs, configs)
+    assert trained == ["move", "insert"], "the move policy, finished before the interruption, was trained again"
+    assert weights_id(out / "cnn" / "move") == move and (out / "cnn" / "insert" / "model.safetensors").exists()
+    assert set(facts["timings"]) == {"CNN move policy", "CNN insert policy"} and set(facts["nll"]) == set(configs)
+
+    configs["move"] = CNNPolicyConfig(subtask="move", epochs=2, num_mixtures=2, image_size=32, batch_size=32)
+    _train_cnn(out, inputs, configs)  # a policy at another config is trained again
+    assert trained == ["move", "insert", "move"]
+
+
 def _browser_check(html: Path) -> dict:
     """Open `html` in headless Chromium; return each image's natural width and each video's ready state."""
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")

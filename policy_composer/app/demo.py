@@ -17,6 +17,7 @@ from functools import partial
 from pathlib import Path
 
 from policy_composer.app.pipeline import Stage, StageRecord, run_stages
+from policy_composer.data import interrupt
 from policy_composer.data.lock import one_writer
 from policy_composer.policies.cnn.configuration_cnn import CORRECTIONS, DEMONSTRATIONS, CNNPolicyConfig
 from policy_composer.selector.configuration import ComposeConfig
@@ -153,7 +154,7 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
         Stage(BC_STAGE if p.dagger_rounds else "cnn",
               f"train the CNN policies on the demonstrations: pick, move, insert ({p.cnn_epochs} epochs)",
               {s: asdict(c) for s, c in cnn.items()},
-              lambda out, i: _train_cnn(out, i, cnn), inputs=("insertion-demos", "transport-demos")),
+              lambda out, i: _train_cnn(out, i, cnn), inputs=("insertion-demos", "transport-demos"), resumable=True),
         *_dagger_rounds(p, {s: (r, c, record(r, p.dagger_episodes)) for s, (r, c) in dagger.items()}, workers),
         Stage("controller-rollouts", f"record rollouts of each controller ({p.rollouts} each)",
               {**record(rollouts, p.rollouts), **library},
@@ -244,7 +245,8 @@ def _dagger_rounds(p: Profile, subtasks: dict[str, tuple], workers: int) -> list
                             f"round(s) of the expert's corrections ({p.dagger_epochs} epochs)",
                             {s: asdict(c) for s, c in configs.items()},
                             partial(_train_dagger, configs=configs, policy=policy, datasets=datasets),
-                            inputs=(policy, *dict.fromkeys(n for d in datasets.values() for n in d))))
+                            inputs=(policy, *dict.fromkeys(n for d in datasets.values() for n in d)),
+                            resumable=True))
         policy = trained
     return stages
 
@@ -302,40 +304,40 @@ def _fit_dmp(out: Path, episodes: int) -> dict:
 
 def _train_cnn(out: Path, inputs: dict[str, Path], configs: dict) -> dict:
     """One CNN policy per subtask, in the library's CNN model folder (out/cnn/SUBTASK)."""
-    import torch
-
-    from policy_composer.policies.cnn.train import train_cnn_policy
-
-    torch.set_num_threads(2)
-    timings, nll = {}, {}
-    for subtask, config in configs.items():
-        t0 = time.perf_counter()
-        demos = inputs[DEMONSTRATIONS[subtask][0].removeprefix("gear-")] / "dataset"  # the recipe's stage
-        _, losses = train_cnn_policy(demos, config, out=out / "cnn" / subtask)
-        timings[f"CNN {subtask} policy"], nll[subtask] = time.perf_counter() - t0, [losses[0], losses[-1]]
-    return {"timings": timings, "nll": nll}
+    demos = {s: [inputs[DEMONSTRATIONS[s][0].removeprefix("gear-")] / "dataset"] for s in configs}  # recipes' stages
+    return _train_policies(out, configs, demos, {s: f"CNN {s} policy" for s in configs})
 
 
 def _train_dagger(out: Path, inputs: dict[str, Path], configs: dict[str, CNNPolicyConfig], policy: str,
                   datasets: dict[str, tuple[str, ...]]) -> dict:
     """A CNN model: the policies of stage `policy`, with those of `configs` trained anew on the datasets of their
     stages `datasets` (the demonstrations and the labelled rollouts)."""
+    shutil.copytree(inputs[policy] / "cnn", out / "cnn", ignore=shutil.ignore_patterns(*configs), dirs_exist_ok=True)
+    return _train_policies(out, configs, {s: [inputs[n] / "dataset" for n in datasets[s]] for s in configs},
+                           {s: f"CNN {s} policy, DAgger round {len(datasets[s]) - 1}" for s in configs})
+
+
+def _train_policies(out: Path, configs: dict[str, CNNPolicyConfig], datasets: dict[str, list[Path]],
+                    names: dict[str, str]) -> dict:
+    """Train the CNN policy of each subtask of `configs` on its `datasets` into out/cnn/SUBTASK. A policy already
+    there at its config was trained by this stage before an interruption (the folder's key fixes the data), and is
+    kept."""
     import torch
 
+    from policy_composer.learning.checkpoint import finished
     from policy_composer.policies.cnn.train import train_cnn_policy
 
     torch.set_num_threads(2)
-    if (out / "cnn").exists():
-        shutil.rmtree(out / "cnn")
-    shutil.copytree(inputs[policy] / "cnn", out / "cnn", ignore=shutil.ignore_patterns(*configs))
     timings, nll = {}, {}
     for subtask, config in configs.items():
-        t0 = time.perf_counter()
-        _, losses = train_cnn_policy([inputs[name] / "dataset" for name in datasets[subtask]], config,
-                                     out=out / "cnn" / subtask)
-        rounds = len(datasets[subtask]) - 1
-        timings[f"CNN {subtask} policy, DAgger round {rounds}"] = time.perf_counter() - t0
+        if log := finished(out / "cnn" / subtask, config):
+            timings[names[subtask]], losses = log["seconds"], log["losses"]
+        else:
+            t0 = time.perf_counter()
+            _, losses = train_cnn_policy(datasets[subtask], config, out=out / "cnn" / subtask)
+            timings[names[subtask]] = time.perf_counter() - t0
         nll[subtask] = [losses[0], losses[-1]]
+        interrupt.check()
     return {"timings": timings, "nll": nll}
 
 
