@@ -7,7 +7,10 @@ image: a user can look at what the model expects a controller to do.
 from __future__ import annotations
 
 import copy
+import hashlib
+import json
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 import torch
@@ -15,6 +18,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from policy_composer.learning.checkpoint import load_checkpoint, save_checkpoint
+from policy_composer.learning.snapshot import Snapshots
 from policy_composer.learning.training import adam, fit_epochs
 from policy_composer.selector.configuration import VAEConfig
 
@@ -82,6 +86,11 @@ class VAE(nn.Module):
             torch.zeros(0, self.config.latent_dim)
 
 
+def _digest(images: torch.Tensor) -> str:
+    """Which images a training is of (a snapshot of a VAE trained on others is not resumed)."""
+    return hashlib.sha256(images.contiguous().numpy()).hexdigest()[:16]
+
+
 def train_vae(images: torch.Tensor, config: VAEConfig, out: str | Path | None = None,
               progress: bool = True) -> tuple[VAE, list[float]]:
     """Fit the VAE to uint8 images (N, 3, S, S); returns it and the per-epoch mean loss."""
@@ -90,12 +99,15 @@ def train_vae(images: torch.Tensor, config: VAEConfig, out: str | Path | None = 
     model = VAE(config)
     opt = adam(model, config)
     gen = torch.Generator().manual_seed(config.seed)
+    snapshots = None if out is None else Snapshots(Path(out).with_name(f"{Path(out).name}.snapshot"), json.dumps(
+        {"config": asdict(config), "frames": len(images), "images": _digest(images)}))
     losses = fit_epochs(model, opt, len(images), config.batch_size, config.epochs,
                         lambda idx: model.loss(images[idx].float() / 255.0)[0], gen,
-                        f"training VAE ({config.camera})", progress, digits=1)
+                        f"training VAE ({config.camera})", progress, digits=1, snapshots=snapshots)
     if out is not None:
         log = {"frames": len(images), "losses": losses, "seconds": round(time.perf_counter() - t0, 1)}
         save_checkpoint(model, config, out, log)
+        snapshots.done()
     return model, losses
 
 

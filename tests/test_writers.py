@@ -188,3 +188,43 @@ def test_a_video_the_encoder_did_not_finish_is_not_put_in_place(tmp_path, monkey
     with pytest.raises(OSError, match="holds 0 of its 10 frames") as caught:
         video.save(tmp_path / "composed.mp4", fps=20)
     assert caught.value.errno == errno.EIO and not any(tmp_path.iterdir())
+
+
+def test_an_interrupted_training_goes_on_from_its_snapshot_to_the_uninterrupted_weights(insertion_demos, tmp_path,
+                                                                                        monkeypatch):
+    import torch
+    from safetensors.torch import load_file
+
+    from policy_composer.learning.snapshot import Snapshots
+    from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
+    from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
+    from policy_composer.policies.cnn.train import load_demonstrations, train_cnn_policy
+
+    config = CNNPolicyConfig(subtask="insert", epochs=4, num_mixtures=2, image_size=32, batch_size=32)
+    data = load_demonstrations(insertion_demos, config, progress=False)
+    _, whole = train_cnn_policy(insertion_demos, config, out=tmp_path / "whole", progress=False, data=data)
+
+    monkeypatch.setattr(Snapshots, "due", lambda self: True)  # a snapshot after every epoch
+    save, saved = Snapshots.save, []
+
+    def killed_after_the_second(self, epoch, *args):
+        save(self, epoch, *args)
+        saved.append(epoch)
+        if epoch == 2:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(Snapshots, "save", killed_after_the_second)
+    with pytest.raises(KeyboardInterrupt):
+        train_cnn_policy(insertion_demos, config, out=tmp_path / "cut", progress=False, data=data)
+    snapshot = tmp_path / "cut.snapshot"
+    assert saved == [1, 2] and (snapshot / "state.json").exists() and not (tmp_path / "cut").exists()
+    model = CNNPolicy(config)
+    opt = torch.optim.Adam(model.parameters())
+    assert Snapshots(snapshot, of="another training").restore(model, opt, None, torch.Generator()) == (0, [])
+
+    _, resumed = train_cnn_policy(insertion_demos, config, out=tmp_path / "cut", progress=False, data=data)
+    assert saved == [1, 2, 3], "the resumed training started again from the first epoch"
+    assert resumed == whole
+    a, b = (load_file(str(tmp_path / name / "model.safetensors")) for name in ("whole", "cut"))
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    assert not snapshot.exists(), "the snapshot outlived the saved model"

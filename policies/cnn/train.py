@@ -8,8 +8,10 @@ statistics with the config as JSON beside it; the library's CNN model is a folde
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Sequence
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +21,7 @@ from policy_composer.data.features import DatasetError, image_key, read_sidecar
 from policy_composer.data.frames import load_frames, random_shift
 from policy_composer.data.recipes import check_recipe
 from policy_composer.learning.checkpoint import CheckpointError, load_checkpoint, load_config, save_checkpoint
+from policy_composer.learning.snapshot import Snapshots
 from policy_composer.learning.training import adam, fit_epochs
 from policy_composer.policies.cnn.configuration_cnn import CORRECTIONS, DEMONSTRATIONS, PROPRIOCEPTION, CNNPolicyConfig
 from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
@@ -113,13 +116,16 @@ def train_cnn_policy(root: str | Path | Sequence[str | Path], config: CNNPolicyC
         offset = data["offset"][idx] if config.offset_weight else None
         return model.loss(images, data["state"][idx], data["action"][idx], offset)
 
+    roots = [str(root)] if isinstance(root, (str, Path)) else [str(r) for r in root]
+    snapshots = None if out is None else Snapshots(Path(out).with_name(f"{Path(out).name}.snapshot"), json.dumps(
+        {"config": asdict(config), "datasets": roots, "frames": n}))
     losses = fit_epochs(model, opt, n, config.batch_size, config.epochs, batch_loss, gen, "training cnn policy",
-                        progress, schedule=schedule, postfix="nll")
+                        progress, schedule=schedule, postfix="nll", snapshots=snapshots)
     if out is not None:
-        roots = [str(root)] if isinstance(root, (str, Path)) else [str(r) for r in root]
         log = {"dataset": roots[0] if len(roots) == 1 else roots, "frames": n, "losses": losses,
                "seconds": round(time.perf_counter() - t0, 1)}
         save_cnn_policy(model, out, log)
+        snapshots.done()
     return model, losses
 
 

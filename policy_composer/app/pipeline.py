@@ -5,7 +5,8 @@ finished stage, a changed setting re-runs that stage and everything downstream o
 their own keys), and an interrupted run resumes at the stage it stopped in. A stage is finished when its
 `stage.json` exists (it is written last, atomically) and its output passes the stage's `verify`: a damaged output
 is named, cleared and made again, and so is everything made from it. Recording stages keep a partial folder and
-continue it episode by episode; any other unfinished folder is cleared and its stage run again.
+continue it episode by episode, training stages model by model; any other unfinished folder is cleared and its stage
+run again.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ class Stage:
     config: dict  # every setting the output depends on, besides its inputs
     run: Callable[[Path, dict[str, Path]], dict]  # (its folder, its inputs' folders) -> facts for the report
     inputs: tuple[str, ...] = ()  # the stages whose outputs it reads
-    resumable: bool = False  # keeps an unfinished folder (recordings continue episode by episode)
+    resumable: bool = False  # keeps an unfinished folder (recordings go on episode by episode, trainings by model)
     verify: Callable[[Path], None] | None = None  # raises ValueError naming what is damaged in a (partial) output
 
 

@@ -16,6 +16,8 @@ from collections.abc import Callable
 import torch
 from torch import nn
 
+from policy_composer.learning.snapshot import Snapshots
+
 
 def data_parallel():
     """Accelerate's state of the training processes a launcher started, or None when training runs as one."""
@@ -63,17 +65,22 @@ def adam(model: nn.Module, config) -> torch.optim.Adam:
 
 def fit_epochs(model: nn.Module, optimizer: torch.optim.Optimizer, n: int, batch_size: int, epochs: int,
                loss_fn: Callable[[torch.Tensor], torch.Tensor], generator: torch.Generator, desc: str,
-               progress: bool = True, schedule=None, postfix: str = "loss", digits: int = 3) -> list[float]:
+               progress: bool = True, schedule=None, postfix: str = "loss", digits: int = 3,
+               snapshots: Snapshots | None = None) -> list[float]:
     """Train `model` for `epochs` over `n` rows; `loss_fn(rows)` gives a batch's mean loss. Returns the
-    per-epoch mean loss and leaves the model in eval mode."""
+    per-epoch mean loss and leaves the model in eval mode. With `snapshots` (one process only), the training
+    starts from its last snapshot, if any, and writes one now and then."""
     from tqdm import tqdm
 
     state = data_parallel()
     rank, world = (state.process_index, state.num_processes) if state is not None else (0, 1)
     params = [p for p in model.parameters() if p.requires_grad]
-    losses = []
-    bar = tqdm(range(epochs), desc=desc, unit="epoch", disable=not progress or rank != 0)
-    for _ in bar:
+    if world > 1:
+        snapshots = None
+    start, losses = snapshots.restore(model, optimizer, schedule, generator) if snapshots else (0, [])
+    bar = tqdm(range(start, epochs), desc=desc, unit="epoch", initial=start, total=epochs,
+               disable=not progress or rank != 0)
+    for epoch in bar:
         model.train()
         total = 0.0
         order = torch.randperm(n, generator=generator)
@@ -97,5 +104,7 @@ def fit_epochs(model: nn.Module, optimizer: torch.optim.Optimizer, n: int, batch
             total = summed.item()
         losses.append(total / n)
         bar.set_postfix({postfix: f"{losses[-1]:.{digits}f}"})
+        if snapshots and epoch + 1 < epochs and snapshots.due():
+            snapshots.save(epoch + 1, losses, model, optimizer, schedule, generator)
     model.eval()
     return losses
