@@ -216,6 +216,7 @@ def _messages(stderr: str) -> str:
 
 
 @pytest.mark.runs_first
+@pytest.mark.timeout(3600)
 def test_the_main_job_runs_every_stage_reuses_them_and_writes_a_report_a_browser_renders(tmp_path):
     exe = Path(sys.executable).parent / "policy-composer"
     env = {**os.environ, "HF_HUB_OFFLINE": "1"}

@@ -100,7 +100,6 @@ def ray_cluster(tmp_path_factory):
     assert not ray.is_initialized()
 
 
-@pytest.mark.timeout(900)
 def test_episodes_on_a_ray_cluster_are_the_serial_ones_and_a_killed_worker_runs_its_episode_again(
         ray_cluster, transport_demos, tmp_path):
     """Two workers as Ray actors: the results in the order of the items; a worker killed mid-episode is restarted
