@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import copy
 import hashlib
-import json
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -99,8 +98,7 @@ def train_vae(images: torch.Tensor, config: VAEConfig, out: str | Path | None = 
     model = VAE(config)
     opt = adam(model, config)
     gen = torch.Generator().manual_seed(config.seed)
-    snapshots = None if out is None else Snapshots(Path(out).with_name(f"{Path(out).name}.snapshot"), json.dumps(
-        {"config": asdict(config), "frames": len(images), "images": _digest(images)}))
+    snapshots = None if out is None else Snapshots.beside(out, config=asdict(config), images=_digest(images))
     losses = fit_epochs(model, opt, len(images), config.batch_size, config.epochs,
                         lambda idx: model.loss(images[idx].float() / 255.0)[0], gen,
                         f"training VAE ({config.camera})", progress, digits=1, snapshots=snapshots)

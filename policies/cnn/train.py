@@ -8,7 +8,6 @@ statistics with the config as JSON beside it; the library's CNN model is a folde
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Sequence
 from dataclasses import asdict
@@ -117,8 +116,7 @@ def train_cnn_policy(root: str | Path | Sequence[str | Path], config: CNNPolicyC
         return model.loss(images, data["state"][idx], data["action"][idx], offset)
 
     roots = [str(root)] if isinstance(root, (str, Path)) else [str(r) for r in root]
-    snapshots = None if out is None else Snapshots(Path(out).with_name(f"{Path(out).name}.snapshot"), json.dumps(
-        {"config": asdict(config), "datasets": roots, "frames": n}))
+    snapshots = None if out is None else Snapshots.beside(out, config=asdict(config), datasets=roots, frames=n)
     losses = fit_epochs(model, opt, n, config.batch_size, config.epochs, batch_loss, gen, "training cnn policy",
                         progress, schedule=schedule, postfix="nll", snapshots=snapshots)
     if out is not None:

@@ -31,6 +31,12 @@ class Snapshots:
     every_s: float = 120.0
     _last: float = field(default_factory=time.monotonic, repr=False)
 
+    @classmethod
+    def beside(cls, out: str | Path, **of) -> Snapshots:
+        """The snapshots of the training whose model goes to `out`, in `out`.snapshot; `of` names the training."""
+        out = Path(out)
+        return cls(out.with_name(f"{out.name}.snapshot"), json.dumps(of))
+
     def due(self) -> bool:
         return time.monotonic() - self._last >= self.every_s
 
