@@ -19,7 +19,7 @@ MODELS = Path("results/models")
 
 # Bumped when the controllers behave differently, so that stored runs of the old ones are not reused (CHANGELOG.md
 # says what each revision changed).
-LIBRARY_REVISION = 9
+LIBRARY_REVISION = 10
 
 __all__ = ["LIBRARY_REVISION", "LeRobotSource", "LibraryError", "LibrarySources", "all_names", "build_library",
            "cameras_needed", "model_ids", "names_of_kind", "subtask_of"]

@@ -133,11 +133,12 @@ class Subtask:
 
 class Pick(Subtask):
     name = "pick"
-    initiation = "gear lying on the table, not in the gripper"
+    initiation = "gear on the table, let go or still between the fingers (a lift that did not take it up)"
 
     def can_start(self, scene):
-        info = scene.info()
-        return not info["gear_grasped"] and scene.gear()[2] < 0.02 and not info["gear_inserted"]
+        # A pick-up that closed on the gear but stalled before the lift leaves it grasped on the table: the pick-up's
+        # first waypoint opens the hand on its way up, and grasps afresh.
+        return scene.gear()[2] < 0.02 and not scene.info()["gear_inserted"]
 
     def waypoints(self, ik, scene, q_now, grasp_offset):
         grasp = scene.gear() + scene.finger_dir() * grasp_offset + [0, 0, scene.grasp_height]
@@ -182,18 +183,25 @@ class Insert(Subtask):
     feels for a hole. Seven guesses 4 mm apart cover the pick-up's +-12 mm."""
 
     name = "insert"
-    initiation = "gear grasped, held above the peg at the pre-insertion pose"
+    initiation = ("gear grasped, held above the peg at the pre-insertion pose, or already part-way down the peg "
+                  "and not seated")
     releases = True
     search = (0.0, *(sign * k * SEARCH_STEP for k in (1, 2, 3) for sign in (1, -1)))
 
     def can_start(self, scene):
-        return scene.info()["gear_at_peg"]
+        # Part-way down: where a closed-loop insertion stalled with the gear in the hand.
+        info = scene.info()
+        return info["gear_at_peg"] or (info["gear_grasped"] and info["gear_inserted"] and not info["success"])
 
     def waypoints(self, ik, scene, q_now, grasp_offset, clearance=CARRY_CLEARANCE):
-        # The TCP over the peg's axis, shifted along the fingers so that a gear `grasp_offset` off-centre is on it.
-        tcp, top, h = scene.tcp(), scene.peg_top() + scene.finger_dir() * grasp_offset, scene.grasp_height
+        # The TCP over the peg's axis, shifted along the fingers so that a gear `grasp_offset` off-centre is on it;
+        # a gear already down the peg goes on straight down from where the hand holds it.
+        tcp, h = scene.tcp(), scene.grasp_height
+        on_peg = scene.info()["gear_inserted"]
+        top = (np.array([tcp[0], tcp[1], scene.peg_top()[2]]) if on_peg
+               else scene.peg_top() + scene.finger_dir() * grasp_offset)
         quat, _ = ik_hand_down(ik, scene, tcp, q_now)
-        above = np.array([top[0], top[1], max(tcp[2], top[2] + clearance + h)])
+        above = tcp if on_peg else np.array([top[0], top[1], max(tcp[2], top[2] + clearance + h)])
         release = np.array([top[0], top[1], top[2] - scene.spec.peg_height + RELEASE_HEIGHT + h])
         align = line_to(ik, q_now, above, quat, GRIPPER_CLOSED, step=0.003, settle=2)
         down = line_to(ik, align.q, release, quat, GRIPPER_CLOSED, step=0.003)
@@ -246,13 +254,14 @@ class Regrasp(Subtask):
     """Up, clear of the peg; over to the table; down; let go; up. The gear then lies flat where a pick-up finds it."""
 
     name = "regrasp"
-    initiation = "gear grasped and lifted off the table, not on the peg"
+    initiation = "gear grasped and lifted off the table, not seated on the peg"
     releases = True
     holds_gear = True
 
     def can_start(self, scene):
+        # Part-way down the peg too: its first waypoint lifts the gear straight up, clear of the peg.
         info = scene.info()
-        return info["gear_lifted"] and not info["gear_inserted"]
+        return info["gear_lifted"] and not info["success"]
 
     def waypoints(self, ik, scene, q_now, grasp_offset):
         tcp, quat = scene.tcp(), np0(ik.arm.tcp.pose.q)

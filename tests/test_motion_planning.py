@@ -4,6 +4,7 @@ insertion that needs a centred grasp, initiation sets, the safety stop and the r
 from __future__ import annotations
 
 import numpy as np
+import pinocchio as pin
 import pytest
 import sapien
 
@@ -21,6 +22,7 @@ from policy_composer.policies.library import LibrarySources, all_names, build_li
 from policy_composer.policies.mp.controller import MotionPlanningController
 from policy_composer.policies.planning import (
     VELOCITY_LIMIT,
+    HeldObject,
     PlanningError,
     SceneCollisionModel,
     plan_rrt_connect,
@@ -102,6 +104,29 @@ def test_the_straight_insertion_is_the_planned_insertions_own(tmp_path):
         LibrarySources(insertion="sideways")
 
 
+def test_the_carry_keeps_a_gear_held_off_centre_clear_of_the_peg(state_env):
+    """The carry is planned for a centred gear, and the pick-up leaves it up to 12 mm off-centre along the fingers:
+    the plan keeps the gear clear of the peg where it really sits. (Planned for the centred gear alone, this carry
+    came up beside the peg, where one 12 mm off-centre caught on the peg's top and tipped out of the hand.)"""
+    obs, _ = state_env.reset(seed=1)
+    obs = run_activation(state_env, MotionPlanningController(state_env, SUBTASKS["pick"], grasp_offset=0.012), obs, 1)
+    move = MotionPlanningController(state_env, SUBTASKS["move"])
+    move.start(obs, seed=1)
+    u, spec, model = state_env.unwrapped, move.scene.spec, move.collision.model
+    held = np0((u.left_arm.tcp.pose.inv() * u.gear.pose).p)  # the gear's bottom centre in the TCP's frame
+    assert abs(held[0]) > 0.012
+    tcp = model.frames[model.getFrameId("panda_hand_tcp")].placement
+    real = SceneCollisionModel()
+    module = u.peg_module.pose
+    real.set_scene(np0(u.right_arm.robot.get_qpos()), sapien.Pose(np0(module.p), np0(module.q)), spec,
+                   held=HeldObject(spec.outer_radius, spec.height,
+                                   tcp * pin.SE3(np.eye(3), held - [0, 0, spec.height / 2])),
+                   fingers=move.collision.fingers[0])
+    path = np.concatenate([s.q for s in move.segments])
+    dense = np.concatenate([np.linspace(a, b, 10) for a, b in zip(path[:-1], path[1:])])
+    assert not [real.colliding_pairs(q) for q in dense if real.in_collision(q)]
+
+
 def test_the_insertion_search_reaches_every_offset_the_pick_up_leaves(state_env):
     """From the insertion's start state, the gear off-centre along the fingers by up to 12 mm (both signs)."""
     seated = 0
@@ -134,6 +159,48 @@ def test_the_regrasp_turns_a_gear_shifted_in_the_hand_into_one_a_pick_up_grasps_
         obs = run_activation(state_env, controller, obs, seed=9)
         assert controller.outcome is Outcome.DONE, (name, controller.reason)
     assert bool(state_env.unwrapped.evaluate()["success"][0])
+
+
+def _until(env, controller, obs, seed: int, stop, max_steps: int = 300):
+    """Run `controller` from obs until `stop(info)` holds, and leave it there (as a controller cut off would)."""
+    controller.start(obs, seed=seed)
+    for _ in range(max_steps):
+        info = controller.scene.info()
+        if stop(info):
+            return obs, info
+        obs, *_ = env.step(env.unwrapped.flat_to_dict_action(controller.act(obs)))
+    raise AssertionError(f"{controller.name} never got there ({controller.outcome}, {controller.reason})")
+
+
+def test_an_insertion_goes_on_down_from_a_gear_left_part_way_down_the_peg(state_env):
+    """Where a closed-loop insertion stalled, the gear in the hand part-way down the peg, the insertion may start (and
+    the re-grasp, no move): it goes on straight down from where the hand holds the gear and seats it, even the
+    paper's straight-down insertion, which from the pre-insertion pose misses a gear 11 mm off-centre (seed 24)."""
+    obs, _ = state_env.reset(seed=24, options={"start": "pre_insertion"})
+    feels = MotionPlanningController(state_env, SUBTASKS["insert"])
+    obs, info = _until(state_env, feels, obs, 24, lambda i: i["gear_inserted"] and i["height_above_base"] < 0.025)
+    assert info["gear_grasped"] and not info["gear_at_peg"] and not info["success"]
+    scene = feels.scene
+    assert SUBTASKS["insert"].can_start(scene) and SUBTASKS["regrasp"].can_start(scene)
+    assert not SUBTASKS["move"].can_start(scene) and not SUBTASKS["pick"].can_start(scene)
+    straight = MotionPlanningController(state_env, INSERTIONS["straight"])
+    obs = run_activation(state_env, straight, obs, seed=24)
+    assert straight.outcome is Outcome.DONE and straight.scene.info()["success"], straight.reason
+
+
+def test_a_pick_up_may_start_again_from_a_gear_it_closed_on_but_did_not_lift(state_env):
+    """A pick-up stalled after closing on the gear (a CNN's, lifting a millimetre a second) leaves it grasped on the
+    table, where no move or re-grasp may start: another pick-up may, opens the hand on its way up and grasps afresh."""
+    obs, _ = state_env.reset(seed=3)
+    stalls = MotionPlanningController(state_env, SUBTASKS["pick"], grasp_offset=0.0)
+    obs, info = _until(state_env, stalls, obs, 3, lambda i: i["gear_grasped"])
+    scene = stalls.scene
+    assert scene.gear()[2] < 0.02 and not info["gear_lifted"]
+    assert SUBTASKS["pick"].can_start(scene)
+    assert not any(SUBTASKS[n].can_start(scene) for n in ("move", "insert", "regrasp"))
+    again = MotionPlanningController(state_env, SUBTASKS["pick"], grasp_offset=0.0)
+    obs = run_activation(state_env, again, obs, seed=3)
+    assert again.outcome is Outcome.DONE and again.scene.info()["gear_lifted"], again.reason
 
 
 def test_initiation_sets_refuse_wrong_states(state_env):

@@ -26,6 +26,8 @@ from policy_composer.policies.planning import (
 )
 from policy_composer.policies.subtasks import SubtaskController, Waypoint, tcp_line
 
+HELD_MARGIN = 0.003  # around the held gear, for the arm lagging its planned path (m)
+
 
 class MotionPlanningController(SubtaskController):
     kind = "mp"
@@ -70,12 +72,14 @@ class MotionPlanningController(SubtaskController):
         return (self.ik.base() * sapien.Pose(local)).p
 
     def nominal_held_gear(self) -> HeldObject:
-        """The gear as a cylinder centred under the TCP (the nominal grasp), in the hand joint's frame."""
+        """The gear as a cylinder centred under the TCP (the nominal grasp), in the hand joint's frame, widened by
+        how far off-centre the pick-up may have left it and by the arm's tracking lag: planned for a centred gear, a
+        carry that came up beside the peg caught a gear 12 mm off-centre on the peg's top and tipped it out."""
         model = self.collision.model
         tcp = model.frames[model.getFrameId("panda_hand_tcp")].placement
         spec, h = self.scene.spec, self.scene.grasp_height
-        return HeldObject(spec.outer_radius, spec.height,
-                          tcp * pin.SE3(np.eye(3), np.array([0, 0, h - spec.height / 2])))
+        return HeldObject(spec.outer_radius + self.max_grasp_offset + HELD_MARGIN, spec.height + HELD_MARGIN,
+                          tcp * pin.SE3(np.eye(3), np.array([0, 0, h + HELD_MARGIN - (spec.height + HELD_MARGIN) / 2])))
 
 
 

@@ -128,7 +128,8 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
     goal = GoalScoreConfig(epochs=p.goal_epochs, num_mixtures=p.mixtures, image_size=p.image_size)
     compose = ComposeConfig(horizon=p.horizon, samples=p.samples, max_steps=p.compose_max_steps)
     env = {"resolution": p.resolution, "clearance_mm": 2.0, "task_revision": TASK_REVISION}
-    # In the keys of the stages that run the controllers: a changed or added controller re-runs them.
+    # In the keys of the stages that run the controllers (the DMPs' too: they learn the planner's trajectories): a
+    # changed or added controller re-runs them.
     library = {"library_revision": LIBRARY_REVISION, "controllers": all_names()}
     table_kinds = tuple(k.label for k in kinds().values())
 
@@ -149,7 +150,7 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
               lambda out, _: _record(full_task, out, p.full_task_demos, p.resolution, workers), resumable=True,
               verify=_verify_dataset),
         Stage("dmp", f"fit the DMPs to the motion planner's episodes ({p.dmp_episodes})",
-              {"episodes": p.dmp_episodes, **env},
+              {"episodes": p.dmp_episodes, "library_revision": LIBRARY_REVISION, **env},
               lambda out, _: _fit_dmp(out, p.dmp_episodes)),
         Stage(BC_STAGE if p.dagger_rounds else "cnn",
               f"train the CNN policies on the demonstrations: pick, move, insert ({p.cnn_epochs} epochs)",
