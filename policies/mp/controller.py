@@ -73,8 +73,8 @@ class MotionPlanningController(SubtaskController):
 
     def nominal_held_gear(self) -> HeldObject:
         """The gear as a cylinder centred under the TCP (the nominal grasp), in the hand joint's frame, widened by
-        how far off-centre the pick-up may have left it and by the arm's tracking lag: planned for a centred gear, a
-        carry that came up beside the peg caught a gear 12 mm off-centre on the peg's top and tipped it out."""
+        how far off-centre the pick-up may have left it and by the arm's lag behind its path: the real gear, not the
+        nominal one, must pass clear of the peg's top, where a caught gear tips out of the hand."""
         model = self.collision.model
         tcp = model.frames[model.getFrameId("panda_hand_tcp")].placement
         spec, h = self.scene.spec, self.scene.grasp_height
