@@ -7,7 +7,7 @@ sub-mesh's material) keeps the look at 128x128 and renders several times faster.
 kinematics and controllers are the stock Panda's.
 
 The decimated meshes are made once and cached under ``$POLICY_COMPOSER_CACHE`` (default
-``~/.cache/policy-composer``), keyed by the ManiSkill version and the decimation ratio.
+``~/.cache/policy-composer``), keyed by the cache's layout, the ManiSkill version and the decimation ratio.
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from mani_skill.agents.robots.panda import Panda
 DECIMATION = 0.1  # fraction of triangles kept per visual sub-mesh
 _PANDA_DIR = Path(PACKAGE_ASSET_DIR) / "robots" / "panda"
 _URDF_NAME = "panda_v2.urdf"
+CACHE_LAYOUT = "v2"  # in the cache folder's name: a cache of another layout is not read
 
 
 def cache_dir() -> Path:
@@ -49,33 +50,39 @@ def _decimate_glb(src: Path, dst: Path, ratio: float) -> None:
         if material is not None:
             simplified.visual = trimesh.visual.TextureVisuals(material=material)
         scene.geometry[name] = simplified
-    tmp = dst.with_suffix(".tmp.glb")
-    scene.export(tmp)
-    tmp.replace(dst)  # atomic: a crash never leaves a half-written mesh in the cache
+    scene.export(dst)
 
 
 def decimated_panda_urdf(ratio: float = DECIMATION) -> Path:
-    """Path to a Panda URDF with decimated visual meshes, building the cache on first use."""
-    root = cache_dir() / f"panda_light-ms{mani_skill.__version__}-r{ratio:g}"
+    """Path to a Panda URDF with decimated visual meshes, building the cache on first use. Processes that start
+    together on a fresh machine (an episode loop's workers) build it once: the others wait on its lock."""
+    from filelock import FileLock
+
+    root = cache_dir() / f"panda_light-{CACHE_LAYOUT}-ms{mani_skill.__version__}-r{ratio:g}"
     urdf = root / _URDF_NAME
     if urdf.exists():
         return urdf
-    visual_src = _PANDA_DIR / "franka_description" / "meshes" / "visual"
-    visual_dst = root / "franka_description" / "meshes" / "visual"
-    visual_dst.mkdir(parents=True, exist_ok=True)
-    collision_link = root / "franka_description" / "meshes" / "collision"
-    if not collision_link.exists():
-        collision_link.symlink_to(_PANDA_DIR / "franka_description" / "meshes" / "collision")
-    for glb in sorted(visual_src.glob("*.glb")):
-        if not (visual_dst / glb.name).exists():
-            _decimate_glb(glb, visual_dst / glb.name, ratio)
-    srdf = _PANDA_DIR / _URDF_NAME.replace(".urdf", ".srdf")
-    if srdf.exists():
-        shutil.copy(srdf, root / srdf.name)
-    tmp = urdf.with_suffix(".tmp")
-    shutil.copy(_PANDA_DIR / _URDF_NAME, tmp)
-    tmp.replace(urdf)  # written last: its presence means the cache is complete
+    root.parent.mkdir(parents=True, exist_ok=True)
+    with FileLock(root.parent / f"{root.name}.lock"):
+        if not urdf.exists():
+            _build(root, ratio)
     return urdf
+
+
+def _build(root: Path, ratio: float) -> None:
+    """The decimated Panda's folder: built aside and renamed into place, so a killed build leaves none. It holds a
+    copy of the stock collision meshes, not a link into one installation's ManiSkill, which another may outlive."""
+    building = root.with_name(f"{root.name}.building")
+    shutil.rmtree(building, ignore_errors=True)
+    meshes = building / "franka_description" / "meshes"
+    (meshes / "visual").mkdir(parents=True)
+    shutil.copytree(_PANDA_DIR / "franka_description" / "meshes" / "collision", meshes / "collision")
+    for glb in sorted((_PANDA_DIR / "franka_description" / "meshes" / "visual").glob("*.glb")):
+        _decimate_glb(glb, meshes / "visual" / glb.name, ratio)
+    for name in (_URDF_NAME, _URDF_NAME.replace(".urdf", ".srdf")):
+        if (_PANDA_DIR / name).exists():
+            shutil.copy(_PANDA_DIR / name, building / name)
+    building.rename(root)
 
 
 @register_agent()
