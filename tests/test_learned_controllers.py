@@ -21,6 +21,7 @@ from policy_composer.data.frames import load_frames, to_model_image
 from policy_composer.data.recipes import RecipeError, load_recipe
 from policy_composer.data.recorder import FrameBuffer
 from policy_composer.learning.checkpoint import weights_id
+from policy_composer.learning.training import fit_epochs
 from policy_composer.policies.arm import np0
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 from policy_composer.policies.cnn.controller import CNNController, hand_step
@@ -120,6 +121,19 @@ def test_a_training_may_start_from_another_policy_of_the_same_network(insertion_
                                               "or from scratch without --init"):
         train_cnn_policy(insertion_demos, replace(config, num_mixtures=2), data=data, progress=False,
                          init=tmp_path / "first")
+
+
+def test_training_flushes_denormal_numbers_to_zero():
+    """A fitted model's gradients fall below float32's normal range, which the CPU computes with slowly (a converged
+    CNN policy's backward pass took 13x as long); the training loop flushes them to zero."""
+    torch.set_flush_denormal(False)
+    denormal = torch.tensor([1e-39])
+    assert (denormal * 2).item() != 0
+    model = torch.nn.Linear(2, 1)
+    opt = torch.optim.SGD(model.parameters(), lr=0.1)
+    x = torch.randn(8, 2)
+    fit_epochs(model, opt, 8, 4, 1, lambda idx: model(x[idx]).pow(2).mean(), torch.Generator(), "fit", progress=False)
+    assert (denormal * 2).item() == 0
 
 
 def test_pick_and_move_policies_learn_their_stages_of_the_transport_demos(transport_demos, tmp_path):

@@ -72,6 +72,9 @@ def fit_epochs(model: nn.Module, optimizer: torch.optim.Optimizer, n: int, batch
     starts from its last snapshot, if any, and writes one now and then."""
     from tqdm import tqdm
 
+    # Denormal numbers: once a model fits, some gradients fall below float32's normal range, and the CPU handles
+    # each in microcode; a converged CNN policy's backward pass took 13x as long. Flushed to zero, they cost nothing.
+    torch.set_flush_denormal(True)
     state = data_parallel()
     rank, world = (state.process_index, state.num_processes) if state is not None else (0, 1)
     params = [p for p in model.parameters() if p.requires_grad]
