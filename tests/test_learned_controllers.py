@@ -3,9 +3,6 @@ checkpoint runs as a controller; the per-controller table command."""
 
 from __future__ import annotations
 
-import json
-from dataclasses import replace
-
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -20,7 +17,6 @@ from policy_composer.data.features import open_dataset, read_sidecar
 from policy_composer.data.frames import load_frames, to_model_image
 from policy_composer.data.recipes import RecipeError, load_recipe
 from policy_composer.data.recorder import FrameBuffer
-from policy_composer.learning.checkpoint import weights_id
 from policy_composer.learning.training import fit_epochs
 from policy_composer.policies.arm import np0
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
@@ -103,24 +99,6 @@ def test_cnn_loss_falls_and_checkpoint_reloads(insertion_demos, tmp_path):
     config_file.write_text(config_file.read_text().replace('"action_space"', '"action_dim": 8, "action_space"'))
     with pytest.raises(CheckpointError, match="another configuration of the CNN policy"):
         load_cnn_policy(tmp_path / "cnn")
-
-
-def test_a_training_may_start_from_another_policy_of_the_same_network(insertion_demos, tmp_path):
-    """`--init`: a DAgger round refines the last round's policy; its first epoch starts where that one ended, the
-    checkpoint names the weights it started from, and a policy of another network is refused, saying how."""
-    config = CNNPolicyConfig(**TINY)
-    data = load_demonstrations(insertion_demos, config, progress=False)
-    first, scratch = train_cnn_policy(insertion_demos, config, out=tmp_path / "first", data=data, progress=False)
-    again, refined = train_cnn_policy(insertion_demos, replace(config, epochs=2, seed=1), out=tmp_path / "again",
-                                      data=data, progress=False, init=tmp_path / "first")
-    assert refined[0] < scratch[0] - 1.0, (scratch, refined)
-    torch.testing.assert_close(again.action_std, first.action_std)  # the first policy's normalisation, kept
-    saved = json.loads((tmp_path / "again" / "config.json").read_text())
-    assert saved["trained_with"] == {"init": weights_id(tmp_path / "first")}
-    with pytest.raises(CheckpointError, match=r"differs in num_mixtures 4 \(training: 2\); train with its settings, "
-                                              "or from scratch without --init"):
-        train_cnn_policy(insertion_demos, replace(config, num_mixtures=2), data=data, progress=False,
-                         init=tmp_path / "first")
 
 
 def test_training_flushes_denormal_numbers_to_zero():

@@ -31,11 +31,6 @@ DEMONSTRATIONS = {"pick": ("gear-transport-demos", (0,)), "move": ("gear-transpo
 # may train on beside its demonstrations.
 CORRECTIONS = {"move": "gear-move-dagger", "insert": "gear-insertion-dagger"}
 
-# What makes two policies the same network reading the same inputs, so that one's weights can start the other's
-# training (`train policy --init`); the training's own settings (epochs, batch size, augmentation) may differ.
-NETWORK_FIELDS = ("subtask", "camera", "view", "image_size", "backbone", "proprioception", "action_space",
-                  "hidden_dim", "num_mixtures", "min_std", "offset_weight")
-
 
 @register_kind("cnn", label="CNN", subtasks=tuple(DEMONSTRATIONS), trained=True)
 @dataclass

@@ -19,22 +19,10 @@ import torch
 from policy_composer.data.features import DatasetError, image_key, read_sidecar
 from policy_composer.data.frames import load_frames, random_shift
 from policy_composer.data.recipes import check_recipe
-from policy_composer.learning.checkpoint import (
-    CheckpointError,
-    load_checkpoint,
-    load_config,
-    save_checkpoint,
-    weights_id,
-)
+from policy_composer.learning.checkpoint import CheckpointError, load_checkpoint, load_config, save_checkpoint
 from policy_composer.learning.snapshot import Snapshots
 from policy_composer.learning.training import adam, fit_epochs
-from policy_composer.policies.cnn.configuration_cnn import (
-    CORRECTIONS,
-    DEMONSTRATIONS,
-    NETWORK_FIELDS,
-    PROPRIOCEPTION,
-    CNNPolicyConfig,
-)
+from policy_composer.policies.cnn.configuration_cnn import CORRECTIONS, DEMONSTRATIONS, PROPRIOCEPTION, CNNPolicyConfig
 from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
 from policy_composer.tasks.gear_kinematics import PandaForwardKinematics
 
@@ -103,20 +91,15 @@ def load_demonstrations(root: str | Path | Sequence[str | Path], config: CNNPoli
 
 
 def train_cnn_policy(root: str | Path | Sequence[str | Path], config: CNNPolicyConfig, out: str | Path | None = None,
-                     progress: bool = True, data: dict[str, torch.Tensor] | None = None,
-                     init: str | Path | None = None) -> tuple[CNNPolicy, list[float]]:
-    """Fit the policy by maximum likelihood of the demonstrated actions; returns it and the loss per epoch. With
-    `init` (a CNN policy checkpoint of the same network) the training starts from its weights and normalisation
-    instead of from scratch: a DAgger round then refines the last round's policy in a few epochs."""
+                     progress: bool = True,
+                     data: dict[str, torch.Tensor] | None = None) -> tuple[CNNPolicy, list[float]]:
+    """Fit the policy by maximum likelihood of the demonstrated actions; returns it and the loss per epoch."""
     t0 = time.perf_counter()
     torch.manual_seed(config.seed)
-    start = _initial_policy(init, config) if init is not None else None
     data = data if data is not None else load_demonstrations(root, config, progress=progress)
     model = CNNPolicy(config)
-    if start is not None:
-        model.load_state_dict(start.state_dict())
     quantities = {"state": data["state"], "action": data["action"][:, :-1], "offset": data.get("offset")}
-    for name in model.normalised if start is None else ():
+    for name in model.normalised:
         x = quantities[name].float()
         getattr(model, f"{name}_mean").copy_(x.mean(0))
         getattr(model, f"{name}_std").copy_(x.std(0).clamp_min(1e-5))
@@ -133,32 +116,19 @@ def train_cnn_policy(root: str | Path | Sequence[str | Path], config: CNNPolicyC
         return model.loss(images, data["state"][idx], data["action"][idx], offset)
 
     roots = [str(root)] if isinstance(root, (str, Path)) else [str(r) for r in root]
-    started = {} if init is None else {"init": weights_id(init)}
-    snapshots = None if out is None else Snapshots.beside(out, config=asdict(config), datasets=roots, frames=n,
-                                                          **started)
+    snapshots = None if out is None else Snapshots.beside(out, config=asdict(config), datasets=roots, frames=n)
     losses = fit_epochs(model, opt, n, config.batch_size, config.epochs, batch_loss, gen, "training cnn policy",
                         progress, schedule=schedule, postfix="nll", snapshots=snapshots)
     if out is not None:
         log = {"dataset": roots[0] if len(roots) == 1 else roots, "frames": n, "losses": losses,
-               "seconds": round(time.perf_counter() - t0, 1), **({} if init is None else {"init": str(init)})}
-        save_checkpoint(model, model.config, out, log, trained_with=started)
+               "seconds": round(time.perf_counter() - t0, 1)}
+        save_cnn_policy(model, out, log)
         snapshots.done()
     return model, losses
 
 
 def save_cnn_policy(model: CNNPolicy, out: str | Path, log: dict | None = None) -> None:
     save_checkpoint(model, model.config, out, log)
-
-
-def _initial_policy(init: str | Path, config: CNNPolicyConfig) -> CNNPolicy:
-    """The checkpoint a training starts from; refused unless it is the same network seeing the same inputs."""
-    start = load_cnn_policy(init)
-    differ = [f"{name} {getattr(start.config, name)!r} (training: {getattr(config, name)!r})"
-              for name in NETWORK_FIELDS if getattr(start.config, name) != getattr(config, name)]
-    if differ:
-        raise CheckpointError(f"cannot start the training from {init}: its policy differs in {'; '.join(differ)}; "
-                              "train with its settings, or from scratch without --init")
-    return start
 
 
 def load_cnn_library(path: str | Path) -> dict[str, CNNPolicy]:

@@ -24,7 +24,7 @@ def cmd_train_policy(args: argparse.Namespace) -> int:
     dataset = args.dataset or [dataset_path(DEMONSTRATIONS[config.subtask][0])]
     out = args.out or str(MODELS / "cnn" / config.subtask)
     t0 = time.time()
-    _, losses = train_cnn_policy(dataset, config, out=out, init=args.init)
+    _, losses = train_cnn_policy(dataset, config, out=out)
     print(f"trained {out} in {time.time() - t0:.0f} s: nll {losses[0]:.3f} -> {losses[-1]:.3f} "
           f"over {len(losses)} epochs")
     return 0
@@ -80,9 +80,6 @@ def add_commands(sub) -> None:
         "image_size": "image-size", "num_mixtures": "mixtures", "action_space": "action-space",
         "proprioception": "proprioception", "shift": "shift", "batch_size": "batch-size", "seed": "seed",
         "max_steps": "max-steps", "offset_weight": "offset-weight"})
-    tr_policy.add_argument("--init", metavar="CHECKPOINT", help="start from this CNN policy's weights instead of "
-                           "from scratch (the same network: subtask, camera, sizes); a DAgger round refines the last "
-                           "round's policy so in a few epochs")
     tr_policy.add_argument("--threads", type=at_least(1), default=2)
     tr_policy.add_argument("--out", help=f"checkpoint folder (default: {MODELS / 'cnn'}/SUBTASK, where the "
                            "library's CNN model looks)")
