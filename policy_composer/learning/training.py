@@ -10,6 +10,7 @@ first process writes files.
 
 from __future__ import annotations
 
+import functools
 import os
 from collections.abc import Callable
 
@@ -63,6 +64,25 @@ def adam(model: nn.Module, config) -> torch.optim.Adam:
     return torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
 
 
+def _flushing_denormals(fit):
+    """Run `fit` with denormal numbers flushed to zero. Once a model fits, some gradients fall below float32's normal
+    range, which the CPU computes in microcode: a converged CNN policy's backward pass took 13x as long. The flag is
+    the process's, and the simulator computes under it too, so it is put back as it was: an episode's physics must
+    not depend on whether a training ran before it in the same process."""
+
+    @functools.wraps(fit)
+    def flushing(*args, **kwargs):
+        flushed = (torch.tensor([1e-39]) * 2).item() == 0  # torch sets the flag but has no getter for it
+        torch.set_flush_denormal(True)
+        try:
+            return fit(*args, **kwargs)
+        finally:
+            torch.set_flush_denormal(flushed)
+
+    return flushing
+
+
+@_flushing_denormals
 def fit_epochs(model: nn.Module, optimizer: torch.optim.Optimizer, n: int, batch_size: int, epochs: int,
                loss_fn: Callable[[torch.Tensor], torch.Tensor], generator: torch.Generator, desc: str,
                progress: bool = True, schedule=None, postfix: str = "loss", digits: int = 3,
@@ -72,9 +92,6 @@ def fit_epochs(model: nn.Module, optimizer: torch.optim.Optimizer, n: int, batch
     starts from its last snapshot, if any, and writes one now and then."""
     from tqdm import tqdm
 
-    # Denormal numbers: once a model fits, some gradients fall below float32's normal range, and the CPU handles
-    # each in microcode; a converged CNN policy's backward pass took 13x as long. Flushed to zero, they cost nothing.
-    torch.set_flush_denormal(True)
     state = data_parallel()
     rank, world = (state.process_index, state.num_processes) if state is not None else (0, 1)
     params = [p for p in model.parameters() if p.requires_grad]
