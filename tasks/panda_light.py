@@ -74,10 +74,10 @@ def _build(root: Path, ratio: float) -> None:
     copy of the stock collision meshes, not a link into one installation's ManiSkill, which another may outlive."""
     building = root.with_name(f"{root.name}.building")
     shutil.rmtree(building, ignore_errors=True)
-    meshes = building / "franka_description" / "meshes"
+    stock, meshes = (folder / "franka_description" / "meshes" for folder in (_PANDA_DIR, building))
     (meshes / "visual").mkdir(parents=True)
-    shutil.copytree(_PANDA_DIR / "franka_description" / "meshes" / "collision", meshes / "collision")
-    for glb in sorted((_PANDA_DIR / "franka_description" / "meshes" / "visual").glob("*.glb")):
+    shutil.copytree(stock / "collision", meshes / "collision")
+    for glb in sorted((stock / "visual").glob("*.glb")):
         _decimate_glb(glb, meshes / "visual" / glb.name, ratio)
     for name in (_URDF_NAME, _URDF_NAME.replace(".urdf", ".srdf")):
         if (_PANDA_DIR / name).exists():
