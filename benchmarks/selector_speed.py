@@ -72,7 +72,7 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--rollout-frames", type=int, default=12000, help="controller-rollout frames (VAE, dynamics)")
     parser.add_argument("--demo-frames", type=int, default=700, help="training full-task demo frames (goal score)")
-    parser.add_argument("--insertion-frames", type=int, default=2270, help="insertion demo frames (CNN policy)")
+    parser.add_argument("--insertion-frames", type=int, default=2724, help="insertion demo frames (CNN policy)")
     parser.add_argument("--skip-training", action="store_true", help="the decision latency only")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
@@ -141,7 +141,12 @@ def main() -> None:
             opt.step()
         return step
 
-    cnn = CNNPolicy(CNNPolicyConfig())
+    cnn, cnn_bf16 = CNNPolicy(CNNPolicyConfig()), CNNPolicy(CNNPolicyConfig(precision="bfloat16"))
+
+    def cnn_loss(model, b):  # the VAE's image size is the policy's
+        state, action = torch.randn(b, model.config.state_dim), torch.randn(b, model.config.action_dim)
+        return model.loss(images[:b], state, action, torch.randn(b, 3))
+
     dyn = LatentDynamics(dyn_config)
     goal = GoalScoreModel(goal_config)
     z = torch.randn(max(dyn_config.batch_size, LatentGoalScoreConfig().batch_size), vae_config.latent_dim)
@@ -155,9 +160,11 @@ def main() -> None:
                                     goal_config.epochs, 2 * args.demo_frames),
         "latent goal score": (fit(latent_goal.train(), lambda b: latent_goal.loss(z[:b], torch.rand(b))),
                               LatentGoalScoreConfig().batch_size, LatentGoalScoreConfig().epochs, args.demo_frames),
-        "CNN policy": (fit(cnn, lambda b: cnn.loss(images[:b], torch.randn(b, cnn.config.state_dim),
-                                                   torch.randn(b, cnn.config.action_dim))),
-                       CNNPolicyConfig().batch_size, CNNPolicyConfig().epochs, args.insertion_frames),
+        "CNN policy": (fit(cnn, lambda b: cnn_loss(cnn, b)), CNNPolicyConfig().batch_size, CNNPolicyConfig().epochs,
+                       args.insertion_frames),
+        "CNN policy, bfloat16 convolutions (--precision bfloat16)": (
+            fit(cnn_bf16, lambda b: cnn_loss(cnn_bf16, b)), CNNPolicyConfig().batch_size, CNNPolicyConfig().epochs,
+            args.insertion_frames),
     }
     for name, (step, batch, epochs, frames) in runs.items():
         per_epoch = epoch_seconds(step, args.frames, batch)

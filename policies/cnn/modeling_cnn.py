@@ -3,7 +3,7 @@ binary command (the gripper's).
 
 One network for both of its trainers: the project's loop (`policies/cnn/train.py`) and LeRobot's `lerobot-train`
 (the `lerobot_policy_cnn_mdn` plugin). Its config gives `backbone`, `hidden_dim`, `state_dim`, `action_dim`,
-`binary_actions`, `num_mixtures`, `min_std` and `offset_weight`.
+`binary_actions`, `num_mixtures`, `min_std` and `offset_weight`, and may give `precision` (float32 when it does not).
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from policy_composer.learning.layers import MixtureDensityHead, image_encoder
+from policy_composer.learning.layers import MixtureDensityHead, encode, image_encoder
 
 
 class CNNPolicy(nn.Module):
@@ -30,6 +30,7 @@ class CNNPolicy(nn.Module):
         self.binary = tuple(config.binary_actions)
         self.motion = tuple(i for i in range(config.action_dim) if i not in self.binary)
         self.encoder = image_encoder(config.backbone, config.hidden_dim)
+        self.bfloat16 = getattr(config, "precision", "float32") == "bfloat16"  # the convolutions, while training
         self.trunk = nn.Sequential(nn.Linear(config.hidden_dim + config.state_dim, config.hidden_dim), nn.ReLU(),
                                    nn.Linear(config.hidden_dim, config.hidden_dim), nn.ReLU())
         self.head = MixtureDensityHead(config.hidden_dim, len(self.motion), config.num_mixtures, config.min_std)
@@ -46,7 +47,7 @@ class CNNPolicy(nn.Module):
     def forward(self, image: torch.Tensor, state: torch.Tensor, features: bool = False):
         """image (B, 3, S, S) in [0, 1]; state (B, state_dim) raw -> (mixture parameters, binary logits (B, n)), and
         the image features if asked."""
-        f = self.encoder(image)
+        f = encode(self.encoder, image, self.bfloat16 and self.training)
         s = (state - self.state_mean) / self.state_std
         h = self.trunk(torch.cat([f, s], dim=-1))
         return (self.head(h), self.gripper(h)) + ((f,) if features else ())

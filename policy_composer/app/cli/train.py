@@ -79,7 +79,7 @@ def add_commands(sub) -> None:
         "subtask": "subtask", "camera": "camera", "view": "view", "backbone": "backbone", "epochs": "epochs",
         "image_size": "image-size", "num_mixtures": "mixtures", "action_space": "action-space",
         "proprioception": "proprioception", "shift": "shift", "batch_size": "batch-size", "seed": "seed",
-        "max_steps": "max-steps", "offset_weight": "offset-weight"})
+        "max_steps": "max-steps", "offset_weight": "offset-weight", "precision": "precision"})
     tr_policy.add_argument("--threads", type=at_least(1), default=2)
     tr_policy.add_argument("--out", help=f"checkpoint folder (default: {MODELS / 'cnn'}/SUBTASK, where the "
                            "library's CNN model looks)")
