@@ -62,6 +62,7 @@ class Profile:
     cnn_max_steps: int = CNNPolicyConfig.max_steps  # a CNN controller's step limit
     compose_max_steps: int = ComposeConfig.max_steps  # control steps of a composed episode
     dagger_subtasks: tuple[str, ...] = ("insert",)  # the CNN policies the DAgger rounds train (see CORRECTIONS)
+    bfloat16_subtasks: tuple[str, ...] = ()  # the CNN policies whose convolutions train in bfloat16 (--precision)
     holds: str = ""  # which results this size supports
     elsewhere: str = ""  # figures at this size that other runs measured (the report links to them in the README)
 
@@ -88,6 +89,7 @@ PROFILES = {
     "paper": Profile("paper", resolution=128, image_size=64, insertion_demos=50, transport_demos=50,
                      full_task_demos=8, train_demos=5, dmp_episodes=5, rollouts=20, cnn_epochs=200,
                      dagger_episodes=50, dagger_epochs=120, dagger_rounds=3, dagger_subtasks=("move", "insert"),
+                     bfloat16_subtasks=("insert",),
                      vae_epochs=30, dynamics_epochs=60, goal_epochs=60,
                      table_trials=10, compose_episodes=50, knockout_episodes=10, mdp_episodes_19=1000,
                      mdp_episodes_100=100,
@@ -121,7 +123,9 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
     rollouts = load_recipe("gear-controller-rollouts")
     straight_rollouts = replace(rollouts, controllers=STRAIGHT)
     cnn = {s: CNNPolicyConfig(subtask=s, epochs=p.cnn_epochs, num_mixtures=p.mixtures, image_size=p.image_size,
-                              max_steps=p.cnn_max_steps) for s in ("pick", "move", "insert")}
+                              max_steps=p.cnn_max_steps,
+                              precision="bfloat16" if s in p.bfloat16_subtasks else "float32")
+           for s in ("pick", "move", "insert")}
     dagger = {s: (load_recipe(CORRECTIONS[s]), replace(cnn[s], epochs=p.dagger_epochs)) for s in p.dagger_subtasks}
     vae = VAEConfig(epochs=p.vae_epochs, image_size=p.image_size)
     dynamics = DynamicsConfig(epochs=p.dynamics_epochs)
