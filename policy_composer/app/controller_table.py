@@ -142,9 +142,11 @@ class TrialRunner:
 
 def evaluate_rows(rows: dict[str, tuple[str, ...]], sources, trials: int, first_seed: int = 0,
                   resolution: int = 128, clearance_mm: float = 2.0, progress: bool = True,
-                  workers: int = 1, columns: tuple[str, ...] = SUBTASK_COLUMNS) -> dict[str, dict[str, Cell]]:
+                  workers: int = 1, columns: tuple[str, ...] = SUBTASK_COLUMNS,
+                  column_trials: dict[str, int] | None = None) -> dict[str, dict[str, Cell]]:
     """Rows of Table I: each row's named controllers (one per subtask) on each of `columns` they cover, `trials`
-    seeds from `first_seed` each, the trials spread over `workers` processes."""
+    seeds from `first_seed` each (or the column's own number in `column_trials`), the trials spread over `workers`
+    processes."""
     import torch
     from tqdm import tqdm
 
@@ -158,7 +160,7 @@ def evaluate_rows(rows: dict[str, tuple[str, ...]], sources, trials: int, first_
     for row, names in rows.items():
         subtasks = {subtask_of(n, sources) for n in names}
         items += [(row, column, seed) for column in columns if set(SEQUENCES[column]) <= subtasks
-                  for seed in range(first_seed, first_seed + trials)]
+                  for seed in range(first_seed, first_seed + (column_trials or {}).get(column, trials))]
     setup = partial(TrialRunner, rows, sources, resolution, clearance_mm)
     with tqdm(total=len(items), desc=" and ".join(rows), unit="trial", disable=not progress) as bar:
         results = run_episodes(setup, items, workers, lambda *_: bar.update())
@@ -184,14 +186,16 @@ def evaluate_controllers(names, sources, trials: int, first_seed: int = 0, resol
 
 def evaluate_table(kinds: list[str], sources, trials: int, first_seed: int = 0, resolution: int = 128,
                    clearance_mm: float = 2.0, progress: bool = True, workers: int = 1,
-                   columns: tuple[str, ...] = SUBTASK_COLUMNS) -> dict[str, dict[str, Cell]]:
+                   columns: tuple[str, ...] = SUBTASK_COLUMNS,
+                   column_trials: dict[str, int] | None = None) -> dict[str, dict[str, Cell]]:
     """Rows of Table I: one for each of `kinds` (MP, DMP, CNN), then one for each LeRobot checkpoint in `sources`."""
     from policy_composer.policies.lerobot_policy.controller import lerobot_label
     from policy_composer.policies.library import names_of_kind
 
     rows = {kind: names_of_kind(kind) for kind in kinds}
     rows.update({lerobot_label(s.path): (s.controller_name,) for s in sources.lerobot})
-    return evaluate_rows(rows, sources, trials, first_seed, resolution, clearance_mm, progress, workers, columns)
+    return evaluate_rows(rows, sources, trials, first_seed, resolution, clearance_mm, progress, workers, columns,
+                         column_trials)
 
 
 def table_row(kind: str, row: dict[str, Cell]) -> str:

@@ -63,16 +63,17 @@ class Profile:
     compose_max_steps: int = ComposeConfig.max_steps  # control steps of a composed episode
     dagger_subtasks: tuple[str, ...] = ("insert",)  # the CNN policies the DAgger rounds train (see CORRECTIONS)
     bfloat16_subtasks: tuple[str, ...] = ()  # the CNN policies whose convolutions train in bfloat16 (--precision)
+    insert_trials: int | None = None  # Table I's insert column, where the paper's comparison lies (None: table_trials)
     holds: str = ""  # which results this size supports
     elsewhere: str = ""  # figures at this size that other runs measured (the report links to them in the README)
 
 
 PROFILES = {
-    "quick": Profile("quick", resolution=64, image_size=64, insertion_demos=20, transport_demos=20,
-                     full_task_demos=7, train_demos=5, dmp_episodes=5, rollouts=4, cnn_epochs=80, dagger_episodes=20,
-                     dagger_epochs=50, dagger_rounds=0, vae_epochs=15, dynamics_epochs=30, goal_epochs=30,
-                     table_trials=3, compose_episodes=10, knockout_episodes=3, mdp_episodes_19=1000,
-                     mdp_episodes_100=30,
+    "quick": Profile("quick", resolution=128, image_size=64, insertion_demos=50, transport_demos=20,
+                     full_task_demos=7, train_demos=5, dmp_episodes=5, rollouts=4, cnn_epochs=80, dagger_episodes=50,
+                     dagger_epochs=80, dagger_rounds=2, bfloat16_subtasks=("insert",), vae_epochs=15,
+                     dynamics_epochs=30, goal_epochs=30, table_trials=3, insert_trials=10, compose_episodes=10,
+                     knockout_episodes=3, mdp_episodes_19=1000, mdp_episodes_100=30,
                      holds="The MDP experiments, the MP row of Table I and the goal-score comparison between cameras"
                            " hold at this size (the MP row needs no training; the MDP runs 1000 episodes, and 30 in "
                            "each of the 9x9 noise cells). The CNN policies (20 demonstrations each, 80 epochs) are "
@@ -136,6 +137,7 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
     # changed or added controller re-runs them.
     library = {"library_revision": LIBRARY_REVISION, "controllers": all_names()}
     table_kinds = tuple(k.label for k in kinds().values())
+    inserts = f", {p.insert_trials} per insertion" if p.insert_trials else ""
 
     def record(recipe, episodes):
         return {"recipe": asdict(recipe), "episodes": episodes, "features_revision": FEATURES_REVISION, **env}
@@ -172,8 +174,8 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
         Stage("goal-score", "evaluate the goal score of each camera on the held-out demonstrations",
               {"cameras": CAMERAS},
               lambda out, i: _evaluate_goal(out, i), inputs=("world-model", "full-task-demos")),
-        Stage("table", f"Table I: each controller kind on each subtask ({p.table_trials} per cell)",
-              {"trials": p.table_trials, "kinds": table_kinds, **env, **library},
+        Stage("table", f"Table I: each controller kind on each subtask ({p.table_trials} per cell{inserts})",
+              {"trials": p.table_trials, "insert_trials": p.insert_trials, "kinds": table_kinds, **env, **library},
               lambda out, i: _table(out, i, p, table_kinds, workers), inputs=("dmp", "cnn")),
         # The paper's Table I as the paper got it: the MP and DMP insertions go straight down once
         # (`--insertion straight`); their rollouts and dynamics models are recorded and trained again for it.
@@ -186,8 +188,8 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
               {"dynamics": asdict(dynamics), "controllers": STRAIGHT},
               lambda out, i: _train_straight(out, i, dynamics),
               inputs=("world-model", "straight-rollouts", "full-task-demos")),
-        Stage("straight-table", f"Table I with the straight-down insertions: MP and DMP ({p.table_trials} per cell)",
-              {"trials": p.table_trials, **env, **library},
+        Stage("straight-table", f"Table I with the straight-down insertions: MP and DMP ({p.table_trials} per "
+              f"cell{inserts})", {"trials": p.table_trials, "insert_trials": p.insert_trials, **env, **library},
               lambda out, i: _table(out, i, p, ("MP", "DMP"), workers, "straight", ("insert", "full")),
               inputs=("dmp", "cnn")),
         Stage("straight-compose", f"compose the library with the straight-down insertions (episodes: "
@@ -387,7 +389,7 @@ def _table(out: Path, inputs: dict[str, Path], p: Profile, kinds: tuple[str, ...
     from policy_composer.app.controller_table import evaluate_table, write_table
 
     rows = evaluate_table(list(kinds), _sources(inputs, insertion), p.table_trials, 0, p.resolution, workers=workers,
-                          columns=columns)
+                          columns=columns, column_trials={"insert": p.insert_trials or p.table_trials})
     write_table(rows, out)
     return {"workers": workers,
             "rows": {kind: {c: [cell.successes, cell.trials, cell.safety_stops] for c, cell in row.items()}
