@@ -217,6 +217,12 @@ def _messages(stderr: str) -> str:
 
 @pytest.mark.runs_first
 @pytest.mark.timeout(3600)
+def _table_cells(stage: Path) -> dict[str, list[str]]:
+    """A Table I stage's rows that ran: the kind's cell, then its pick, move, insert and full-task cells."""
+    return {line.split(" | ")[0]: line.split(" | ")[1:] for line in (stage / "controllers.md").read_text().splitlines()
+            if line.startswith("| ") and " (95% CI " in line}
+
+
 def test_the_main_job_runs_every_stage_reuses_them_and_writes_a_report_a_browser_renders(tmp_path):
     exe = Path(sys.executable).parent / "policy-composer"
     env = {**os.environ, "HF_HUB_OFFLINE": "1"}
@@ -245,17 +251,19 @@ def test_the_main_job_runs_every_stage_reuses_them_and_writes_a_report_a_browser
     assert report.index("## Table I, the paper's experiment") < report.index("## Table I beyond the paper")
     assert report.index("| subtask | finished by | tried, not finished |") < report.index("## Table I beyond")
 
-    # Table I's stage: every kind's row, each cell one trial with its interval beside the paper's.
+    # Table I's stage: every kind's row, each cell one trial with its interval beside the paper's, the insertion's
+    # two (the profile's insert_trials).
     table = next((tmp_path / "pipeline").glob("table-*"))
-    rows = {line.split(" | ")[0]: line for line in (table / "controllers.md").read_text().splitlines()
-            if line.startswith("| ") and "/1 (95% CI " in line}
-    assert set(rows) == {"| MP", "| DMP", "| CNN"} and all(r.count("/1 (95% CI ") == 4 for r in rows.values()), rows
-    assert "; paper 10/10 |" in rows["| MP"] and (table / "controllers.csv").read_text().count("\n") == 1 + 3 * 4
+    rows = _table_cells(table)
+    assert set(rows) == {"| MP", "| DMP", "| CNN"}, rows
+    assert all(["/1 (95% CI " in c for c in r] == [True, True, False, True] and "/2 (95% CI " in r[2]
+               for r in rows.values()), rows
+    assert "paper 10/10" in rows["| MP"][0] and (table / "controllers.csv").read_text().count("\n") == 1 + 3 * 4
     # The straight-down table runs the planned kinds' insert and full task only (pick and move do not change).
     straight = next((tmp_path / "pipeline").glob("straight-table-*"))
-    rows = {line.split(" | ")[0]: line for line in (straight / "controllers.md").read_text().splitlines()
-            if line.startswith("| ") and "/1 (95% CI " in line}
-    assert set(rows) == {"| MP", "| DMP"} and all(r.count("/1 (95% CI ") == 2 for r in rows.values()), rows
+    rows = _table_cells(straight)
+    assert set(rows) == {"| MP", "| DMP"}, rows
+    assert all(r[0].startswith("-") and "/2 (95% CI " in r[2] and "/1 (95% CI " in r[3] for r in rows.values()), rows
     # The MDP stage: both experiments' tables, figures, trace and report.
     mdp = next((tmp_path / "pipeline").glob("mdp-*"))
     for name in ("mdp19_solution.png", "mdp19_episodes.csv", "mdp19_trace.json", "mdp100_heatmap_lookahead.png",

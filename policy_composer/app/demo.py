@@ -64,16 +64,17 @@ class Profile:
     dagger_subtasks: tuple[str, ...] = ("insert",)  # the CNN policies the DAgger rounds train (see CORRECTIONS)
     bfloat16_subtasks: tuple[str, ...] = ()  # the CNN policies whose convolutions train in bfloat16 (--precision)
     insert_trials: int | None = None  # Table I's insert column, where the paper's comparison lies (None: table_trials)
+    insert_epochs: int | None = None  # the CNN insertion's behaviour cloning, if not cnn_epochs
     holds: str = ""  # which results this size supports
     elsewhere: str = ""  # figures at this size that other runs measured (the report links to them in the README)
 
 
 PROFILES = {
     "quick": Profile("quick", resolution=128, image_size=64, insertion_demos=50, transport_demos=20,
-                     full_task_demos=7, train_demos=5, dmp_episodes=5, rollouts=4, cnn_epochs=80, dagger_episodes=50,
-                     dagger_epochs=80, dagger_rounds=2, bfloat16_subtasks=("insert",), vae_epochs=15,
-                     dynamics_epochs=30, goal_epochs=30, table_trials=3, insert_trials=10, compose_episodes=10,
-                     knockout_episodes=3, mdp_episodes_19=1000, mdp_episodes_100=30,
+                     full_task_demos=7, train_demos=5, dmp_episodes=5, rollouts=4, cnn_epochs=80, insert_epochs=200,
+                     dagger_episodes=50, dagger_epochs=120, dagger_rounds=1, bfloat16_subtasks=("insert",),
+                     vae_epochs=15, dynamics_epochs=30, goal_epochs=30, table_trials=3, insert_trials=10,
+                     compose_episodes=10, knockout_episodes=3, mdp_episodes_19=1000, mdp_episodes_100=30,
                      holds="The MDP experiments, the MP row of Table I and the goal-score comparison between cameras"
                            " hold at this size (the MP row needs no training; the MDP runs 1000 episodes, and 30 in "
                            "each of the 9x9 noise cells). The CNN policies (20 demonstrations each, 80 epochs) are "
@@ -100,7 +101,8 @@ PROFILES = {
     "smoke": Profile("smoke", resolution=32, image_size=32, insertion_demos=1, transport_demos=1,
                      full_task_demos=2, train_demos=1, dmp_episodes=1, rollouts=1, cnn_epochs=2, dagger_episodes=1,
                      dagger_epochs=2, dagger_rounds=1, vae_epochs=2, dynamics_epochs=2, goal_epochs=2,
-                     table_trials=1, compose_episodes=1, knockout_episodes=1, mdp_episodes_19=20, mdp_episodes_100=2,
+                     table_trials=1, insert_trials=2, compose_episodes=1, knockout_episodes=1, mdp_episodes_19=20,
+                     mdp_episodes_100=2,
                      mdp_levels=(0.0, 0.4, 0.8), mixtures=4, horizon=3, samples=4, cnn_max_steps=30,
                      compose_max_steps=250, dagger_subtasks=("move", "insert"),
                      holds="Every stage at the smallest size that runs, to test the pipeline: no figure here means "
@@ -123,8 +125,9 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
     full_task = replace(load_recipe("gear-full-task-demos"), train_episodes=p.train_demos)
     rollouts = load_recipe("gear-controller-rollouts")
     straight_rollouts = replace(rollouts, controllers=STRAIGHT)
-    cnn = {s: CNNPolicyConfig(subtask=s, epochs=p.cnn_epochs, num_mixtures=p.mixtures, image_size=p.image_size,
-                              max_steps=p.cnn_max_steps,
+    epochs = {"insert": p.insert_epochs or p.cnn_epochs}
+    cnn = {s: CNNPolicyConfig(subtask=s, epochs=epochs.get(s, p.cnn_epochs), num_mixtures=p.mixtures,
+                              image_size=p.image_size, max_steps=p.cnn_max_steps,
                               precision="bfloat16" if s in p.bfloat16_subtasks else "float32")
            for s in ("pick", "move", "insert")}
     dagger = {s: (load_recipe(CORRECTIONS[s]), replace(cnn[s], epochs=p.dagger_epochs)) for s in p.dagger_subtasks}
@@ -159,7 +162,8 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
               {"episodes": p.dmp_episodes, "library_revision": LIBRARY_REVISION, **env},
               lambda out, _: _fit_dmp(out, p.dmp_episodes)),
         Stage(BC_STAGE if p.dagger_rounds else "cnn",
-              f"train the CNN policies on the demonstrations: pick, move, insert ({p.cnn_epochs} epochs)",
+              f"train the CNN policies on the demonstrations: pick, move, insert ({p.cnn_epochs} epochs"
+              f"{f', the insertion {p.insert_epochs}' if p.insert_epochs else ''})",
               {s: asdict(c) for s, c in cnn.items()},
               lambda out, i: _train_cnn(out, i, cnn), inputs=("insertion-demos", "transport-demos"), resumable=True),
         *_dagger_rounds(p, {s: (r, c, record(r, p.dagger_episodes)) for s, (r, c) in dagger.items()}, workers),
