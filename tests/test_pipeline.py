@@ -295,7 +295,7 @@ def test_the_report_states_only_its_own_runs_figures(tmp_path):
     header = _header(PROFILES["quick"], records, 60.0, out)
     assert "99/100" not in header and "20 of 20" not in header
     line = next(line for line in header.splitlines() if line.startswith("**Measured elsewhere, not by this run:**"))
-    assert "(measured 2026-12-02)" in line
+    assert "(measured 2026-12-05)" in line
     target = re.search(r"\]\(([^)#]+)#the-main-job\)", line).group(1)
     assert (out / target).resolve() == ROOT / "README.md"
     assert "## The main job" in (ROOT / "README.md").read_text()
