@@ -215,14 +215,14 @@ def _messages(stderr: str) -> str:
                      and not re.search(r"\d+%\|", line))
 
 
-@pytest.mark.runs_first
-@pytest.mark.timeout(3600)
 def _table_cells(stage: Path) -> dict[str, list[str]]:
     """A Table I stage's rows that ran: the kind's cell, then its pick, move, insert and full-task cells."""
     return {line.split(" | ")[0]: line.split(" | ")[1:] for line in (stage / "controllers.md").read_text().splitlines()
             if line.startswith("| ") and " (95% CI " in line}
 
 
+@pytest.mark.runs_first
+@pytest.mark.timeout(3600)
 def test_the_main_job_runs_every_stage_reuses_them_and_writes_a_report_a_browser_renders(tmp_path):
     exe = Path(sys.executable).parent / "policy-composer"
     env = {**os.environ, "HF_HUB_OFFLINE": "1"}
