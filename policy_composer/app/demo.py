@@ -126,9 +126,8 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
     full_task = replace(load_recipe("gear-full-task-demos"), train_episodes=p.train_demos)
     rollouts = load_recipe("gear-controller-rollouts")
     straight_rollouts = replace(rollouts, controllers=STRAIGHT)
-    epochs = {"insert": p.insert_epochs or p.cnn_epochs}
-    cnn = {s: CNNPolicyConfig(subtask=s, epochs=epochs.get(s, p.cnn_epochs), num_mixtures=p.mixtures,
-                              image_size=p.image_size, max_steps=p.cnn_max_steps,
+    cnn = {s: CNNPolicyConfig(subtask=s, epochs=(s == "insert" and p.insert_epochs) or p.cnn_epochs,
+                              num_mixtures=p.mixtures, image_size=p.image_size, max_steps=p.cnn_max_steps,
                               precision="bfloat16" if s in p.bfloat16_subtasks else "float32")
            for s in ("pick", "move", "insert")}
     dagger = {s: (load_recipe(CORRECTIONS[s]), replace(cnn[s], epochs=p.dagger_epochs)) for s in p.dagger_subtasks}
