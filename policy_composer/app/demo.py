@@ -72,8 +72,8 @@ class Profile:
 PROFILES = {
     "quick": Profile("quick", resolution=128, image_size=64, insertion_demos=50, transport_demos=20,
                      full_task_demos=7, train_demos=5, dmp_episodes=5, rollouts=4, cnn_epochs=80, insert_epochs=200,
-                     dagger_episodes=50, dagger_epochs=120, dagger_rounds=1, bfloat16_subtasks=("insert",),
-                     vae_epochs=15, dynamics_epochs=30, goal_epochs=30, table_trials=3, insert_trials=10,
+                     dagger_episodes=50, dagger_epochs=120, dagger_rounds=2,
+                     bfloat16_subtasks=("pick", "move", "insert"), vae_epochs=15, dynamics_epochs=30, goal_epochs=30, table_trials=3, insert_trials=10,
                      compose_episodes=10, knockout_episodes=3, mdp_episodes_19=1000, mdp_episodes_100=30,
                      holds="The MDP experiments, the MP row of Table I, the CNN insertion and the goal-score "
                            "comparison between cameras hold at this size (the MP row needs no training; the CNN "
