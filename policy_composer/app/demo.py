@@ -73,19 +73,19 @@ PROFILES = {
     "quick": Profile("quick", resolution=128, image_size=64, insertion_demos=50, transport_demos=20,
                      full_task_demos=7, train_demos=5, dmp_episodes=5, rollouts=4, cnn_epochs=80, insert_epochs=200,
                      dagger_episodes=50, dagger_epochs=120, dagger_rounds=2,
-                     bfloat16_subtasks=("pick", "move", "insert"), vae_epochs=15, dynamics_epochs=30, goal_epochs=30, table_trials=3, insert_trials=10,
-                     compose_episodes=10, knockout_episodes=3, mdp_episodes_19=1000, mdp_episodes_100=30,
+                     bfloat16_subtasks=("pick", "move", "insert"), vae_epochs=15, dynamics_epochs=30,
+                     goal_epochs=30, table_trials=3, insert_trials=10, compose_episodes=10, knockout_episodes=3,
+                     mdp_episodes_19=1000, mdp_episodes_100=30,
                      holds="The MDP experiments, the MP row of Table I, the CNN insertion and the goal-score "
                            "comparison between cameras hold at this size (the MP row needs no training; the CNN "
-                           "insertion is the paper profile's up to its first DAgger round: 50 demonstrations at "
-                           "128 px for 200 epochs, then 50 of its own rollouts labelled by the expert, 120 epochs, "
-                           "in bfloat16, which seated 83/100 held-out seeds in one run and 91/100 tuning seeds in "
-                           "another; every insertion of Table I has 10 trials; the MDP runs 1000 episodes, and 30 in "
-                           "each of the 9x9 noise cells). The CNN pick-up and move (20 demonstrations each, 80 "
-                           "epochs) are far below the paper's sizes and their cells have 3 trials, so they show "
-                           "that the pipeline works, not how well: run `--profile paper` for that. The composed "
-                           "rows' 10 seeds show the selector at work; their rates at this size need more seeds than "
-                           "this job runs.",
+                           "insertion is the paper profile's up to its second DAgger round: 50 demonstrations at "
+                           "128 px for 200 epochs, then twice 50 of its own rollouts labelled by the expert and 120 "
+                           "epochs, in bfloat16, which seated 96/100 held-out seeds in one run; every insertion of "
+                           "Table I has 10 trials; the MDP runs 1000 episodes, and 30 in each of the 9x9 noise "
+                           "cells). The CNN pick-up and move (20 demonstrations each, 80 epochs) are far below the "
+                           "paper's sizes and their cells have 3 trials, so they show that the pipeline works, not "
+                           "how well: run `--profile paper` for that. The composed rows' 10 seeds show the selector "
+                           "at work; their rates at this size need more seeds than this job runs.",
                      elsewhere="the composed row on 100 held-out seeds with the models of an earlier run of this "
                                "profile (measured 2026-12-05), and recovery from 20 knock-outs with those of its "
                                "earlier size (64 px cameras, measured 2026-12-02)"),
