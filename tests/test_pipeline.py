@@ -294,6 +294,8 @@ def test_the_report_states_only_its_own_runs_figures(tmp_path):
     records = {"compose": StageRecord("compose", "compose", "k", out / "pipeline" / "compose-k", 60.0, False)}
     header = _header(PROFILES["quick"], records, 60.0, out)
     assert "99/100" not in header and "20 of 20" not in header
+    # Its sizes are the ones the stages train with: the insertion's own epochs and bfloat16 included.
+    assert f"CNN 80 epochs, the insertion {PROFILES['quick'].insert_epochs}, in bfloat16 for the pick" in header
     line = next(line for line in header.splitlines() if line.startswith("**Measured elsewhere, not by this run:**"))
     assert "(measured 2026-12-05)" in line
     target = re.search(r"\]\(([^)#]+)#the-main-job\)", line).group(1)

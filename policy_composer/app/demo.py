@@ -68,6 +68,12 @@ class Profile:
     holds: str = ""  # which results this size supports
     elsewhere: str = ""  # figures at this size that other runs measured (the report links to them in the README)
 
+    def cnn_training(self) -> str:
+        """The CNN policies' behaviour cloning, as the job's messages and its report state it."""
+        insert = f", the insertion {self.insert_epochs}" if self.insert_epochs else ""
+        bfloat16 = f", in bfloat16 for the {', '.join(self.bfloat16_subtasks)}" if self.bfloat16_subtasks else ""
+        return f"{self.cnn_epochs} epochs{insert}{bfloat16}"
+
 
 PROFILES = {
     "quick": Profile("quick", resolution=128, image_size=64, insertion_demos=50, transport_demos=20,
@@ -162,8 +168,7 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
               {"episodes": p.dmp_episodes, "library_revision": LIBRARY_REVISION, **env},
               lambda out, _: _fit_dmp(out, p.dmp_episodes)),
         Stage(BC_STAGE if p.dagger_rounds else "cnn",
-              f"train the CNN policies on the demonstrations: pick, move, insert ({p.cnn_epochs} epochs"
-              f"{f', the insertion {p.insert_epochs}' if p.insert_epochs else ''})",
+              f"train the CNN policies on the demonstrations: pick, move, insert ({p.cnn_training()})",
               {s: asdict(c) for s, c in cnn.items()},
               lambda out, i: _train_cnn(out, i, cnn), inputs=("insertion-demos", "transport-demos"), resumable=True),
         *_dagger_rounds(p, {s: (r, c, record(r, p.dagger_episodes)) for s, (r, c) in dagger.items()}, workers),

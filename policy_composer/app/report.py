@@ -109,7 +109,7 @@ def _header(profile, records: dict[str, StageRecord], wall_seconds: float, out: 
         f"Sizes: {profile.insertion_demos} insertion and {profile.transport_demos} pick-up and carry demonstrations, "
         f"{profile.train_demos} full-task demonstrations "
         f"for the goal scorers ({profile.full_task_demos - profile.train_demos} held out), {profile.rollouts} rollouts "
-        f"per controller, CNN {profile.cnn_epochs} epochs{_dagger(profile)}, {profile.mixtures} mixtures, "
+        f"per controller, CNN {profile.cnn_training()}{_dagger(profile)}, {profile.mixtures} mixtures, "
         f"selector n = {profile.horizon}, "
         f"K = {profile.samples}, cameras at {profile.resolution} px (models see {profile.image_size} px)."])
 
