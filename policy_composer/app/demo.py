@@ -84,14 +84,13 @@ PROFILES = {
                      mdp_episodes_19=1000, mdp_episodes_100=30,
                      holds="The MDP experiments, the MP row of Table I, the CNN insertion and the goal-score "
                            "comparison between cameras hold at this size (the MP row needs no training; the CNN "
-                           "insertion is the paper profile's up to its second DAgger round: 50 demonstrations at "
-                           "128 px for 200 epochs, then twice 50 of its own rollouts labelled by the expert and 120 "
-                           "epochs, in bfloat16, which seated 96/100 held-out seeds in one run; every insertion of "
-                           "Table I has 10 trials; the MDP runs 1000 episodes, and 30 in each of the 9x9 noise "
-                           "cells). The CNN pick-up and move (20 demonstrations each, 80 epochs) are far below the "
-                           "paper's sizes and their cells have 3 trials, so they show that the pipeline works, not "
-                           "how well: run `--profile paper` for that. The composed rows' 10 seeds show the selector "
-                           "at work; their rates at this size need more seeds than this job runs.",
+                           "insertion is the paper profile's recipe up to its second DAgger round, which seated "
+                           "96/100 held-out seeds in one run; every insertion of Table I has 10 trials; the MDP runs "
+                           "1000 episodes, and 30 in each of the 9x9 noise cells). The CNN pick-up and move (20 "
+                           "demonstrations each, 80 epochs) are far below the paper's sizes and their cells have 3 "
+                           "trials, so they show that the pipeline works, not how well: run `--profile paper` for "
+                           "that. The composed rows' 10 seeds show the selector at work; their rates at this size "
+                           "need more seeds than this job runs.",
                      elsewhere="the composed row on 100 held-out seeds with the models of an earlier run of this "
                                "profile (measured 2026-12-05), and recovery from 20 knock-outs with those of its "
                                "earlier size (64 px cameras, measured 2026-12-02)"),
