@@ -22,7 +22,7 @@ MODELS = Path("results/models")
 LIBRARY_REVISION = 10
 
 __all__ = ["LIBRARY_REVISION", "LeRobotSource", "LibraryError", "LibrarySources", "all_names", "build_library",
-           "cameras_needed", "model_ids", "names_of_kind", "subtask_of"]
+           "cameras_needed", "check_models", "model_ids", "names_of_kind", "subtask_of"]
 
 
 @dataclass(frozen=True)
@@ -113,7 +113,7 @@ def cameras_needed(names, sources: LibrarySources) -> tuple[str, ...]:
 def model_ids(names, sources: LibrarySources) -> dict[str, str]:
     """The trained model each named controller runs, by `weights_id`, and the insertion of a planned one that does
     not feel for the hole (controllers with neither are left out): recorded with its rollouts, so that a dynamics
-    model is never paired with another controller."""
+    model is never paired with another controller (`check_models` first: a model missing or damaged has no id)."""
     from policy_composer.learning.checkpoint import weights_id
 
     lerobot = {s.controller_name: s.path for s in sources.lerobot}
@@ -124,12 +124,20 @@ def model_ids(names, sources: LibrarySources) -> dict[str, str]:
         if path is not None and kind is not None:  # a folder with one model per subtask: the subtask's own
             own = Path(path) / name.removeprefix(f"{kind.name}_")
             path = own if own.is_dir() else path
-        if path is not None and Path(path).is_dir():  # a missing model: building the controller says so
+        if path is not None and Path(path).is_dir():
             ids[name] = weights_id(path)
         planned_insert = kind is not None and kind.planned and name == f"{kind.name}_insert"
         if planned_insert and sources.insertion != LibrarySources.insertion:  # it behaves otherwise
             ids[name] = f"{ids.get(name, kind.name)}, {sources.insertion} insertion"
     return ids
+
+
+def check_models(names, sources: LibrarySources) -> None:
+    """Load the trained model of each named controller's kind: one that is missing, damaged or of another subtask is
+    refused here, in its loader's words, before its id is compared with anything."""
+    models = _Models(sources)
+    for kind in dict.fromkeys(filter(None, map(kind_of, names))):
+        models[kind]  # noqa: B018
 
 
 def build_library(env, names=None, sources: LibrarySources | None = None) -> dict[str, Controller]:

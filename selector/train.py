@@ -17,7 +17,7 @@ import torch
 from policy_composer.data.features import DatasetError, image_key, read_sidecar
 from policy_composer.data.frames import load_frames, to_model_image
 from policy_composer.data.recipes import check_recipe
-from policy_composer.learning.checkpoint import finished, weights_id
+from policy_composer.learning.checkpoint import check_out, finished, model_writer, weights_id
 from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, LatentGoalScoreConfig, VAEConfig
 from policy_composer.selector.dynamics import train_dynamics
 from policy_composer.selector.goal_score import train_goal_score, train_latent_goal_score
@@ -44,7 +44,13 @@ def train_world_model(rollouts: str | Path, demos: str | Path, out: str | Path, 
     the VAE already in `out` is kept (to add or retrain some controllers' dynamics models). With `resume`, every
     model already in `out` at its configuration (and with its VAE) is kept: a training cut short goes on where it
     stopped."""
-    out = Path(out)
+    with model_writer(out):
+        return _train_world_model(Path(out), rollouts, demos, vae_config, dynamics_config, controllers, reuse_vae,
+                                  progress, resume)
+
+
+def _train_world_model(out: Path, rollouts, demos, vae_config, dynamics_config, controllers, reuse_vae: bool,
+                       progress: bool, resume: bool) -> dict[str, float]:
     kept = resume and vae_config is not None and finished(out / "vae", vae_config)
     vae = load_vae(out / "vae") if reuse_vae or kept else None
     vae_config = vae.config if vae is not None else vae_config or VAEConfig()  # a kept VAE keeps its camera
@@ -57,6 +63,10 @@ def train_world_model(rollouts: str | Path, demos: str | Path, out: str | Path, 
     if unknown:  # before any training: nothing would be trained for them
         raise DatasetError(f"{rollouts} holds no rollouts of {', '.join(unknown)}: --controllers takes the "
                            f"controllers it recorded, {', '.join(recorded) or 'none'}")
+    if vae is None:
+        check_out(out / "vae", VAEConfig)
+    for name in controllers or recorded:
+        check_out(out / "dynamics" / name, DynamicsConfig)
     ro = load_frames(rollouts, (camera,), size, required={"controller": (1,)}, progress=progress)
     timings = {}
     if vae is None:
@@ -94,8 +104,14 @@ def train_goal_scores(demos: str | Path, out: str | Path, cameras: tuple[str, ..
     `out/vae`, if there is one, adds its reconstructions to its own camera's training images, and a goal scorer of
     its latents is trained too (`goal_score/latent`). With `resume`, a goal scorer already in `out` at its
     configuration is kept."""
-    out = Path(out)
-    config = config or GoalScoreConfig()
+    with model_writer(out):
+        return _train_goal_scores(Path(out), demos, cameras, config or GoalScoreConfig(), progress, resume)
+
+
+def _train_goal_scores(out: Path, demos, cameras: tuple[str, ...], config: GoalScoreConfig, progress: bool,
+                       resume: bool) -> dict[str, float]:
+    for camera in cameras:
+        check_out(out / "goal_score" / camera, GoalScoreConfig)
     check_recipe(demos, "gear-full-task-demos", "the goal score")
     frames = load_frames(demos, cameras, config.image_size, demo_split(demos, "train"),
                          required={"progress": (1,)}, progress=progress)

@@ -14,7 +14,7 @@ import torch
 from gymnasium import spaces
 
 from policy_composer.tasks.rollout import make_env, tile_cameras
-from policy_composer.tasks.spec import ACTION_NAMES, CAMERA_NAMES, STATE_NAMES
+from policy_composer.tasks.spec import ACTION_NAMES, CAMERA_NAMES, CLEARANCE_MM, RESOLUTION, STATE_NAMES
 
 # Each task: where an episode starts (GearAssembly-v1's start states), its step limit and LeRobot's task string.
 # The insertion starts at the pre-insertion pose with a random grasp offset, as Table I's insert column does; its
@@ -25,6 +25,24 @@ TASKS = {
 }
 
 
+def check_settings(task: str, resolution: int, cameras, clearance_mm: float, max_episode_steps: int | None) -> None:
+    """A ValueError naming the first setting (by its lerobot-eval flag) that GearAssembly cannot run with."""
+    if task not in TASKS:
+        raise ValueError(f"GearAssembly has no task {task!r}: choose one of {', '.join(TASKS)} (--env.task)")
+    unknown = set(cameras) - set(CAMERA_NAMES)
+    if unknown or not cameras:
+        raise ValueError(f"GearAssembly's cameras are {', '.join(CAMERA_NAMES)}, not {sorted(unknown) or '[]'} "
+                         "(--env.cameras)")
+    if not RESOLUTION[0] <= resolution <= RESOLUTION[1]:
+        raise ValueError(f"--env.resolution must be between {RESOLUTION[0]} and {RESOLUTION[1]} pixels, not "
+                         f"{resolution}")
+    if not CLEARANCE_MM[0] <= clearance_mm <= CLEARANCE_MM[1]:
+        raise ValueError(f"--env.clearance_mm must be between {CLEARANCE_MM[0]:g} and {CLEARANCE_MM[1]:g} mm, not "
+                         f"{clearance_mm}")
+    if max_episode_steps is not None and max_episode_steps < 1:
+        raise ValueError(f"an episode needs at least one step, not {max_episode_steps} (--env.episode_length)")
+
+
 class GearAssemblyLeRobotEnv(gym.Env):
     """One GearAssembly-v1 env (CPU simulation) with LeRobot's observation, action and info conventions."""
 
@@ -32,16 +50,10 @@ class GearAssemblyLeRobotEnv(gym.Env):
 
     def __init__(self, task: str = "insert", resolution: int = 128, cameras: tuple[str, ...] = CAMERA_NAMES,
                  clearance_mm: float = 2.0, render_mode: str = "rgb_array", max_episode_steps: int | None = None):
-        if task not in TASKS:
-            raise ValueError(f"GearAssembly has no task {task!r}: choose one of {', '.join(TASKS)} (--env.task)")
-        unknown = set(cameras) - set(CAMERA_NAMES)
-        if unknown or not cameras:
-            raise ValueError(f"GearAssembly's cameras are {', '.join(CAMERA_NAMES)}, not {sorted(unknown) or '[]'}")
+        check_settings(task, resolution, cameras, clearance_mm, max_episode_steps)
         self.task, self.cameras, self.render_mode = task, tuple(cameras), render_mode
         self._start, self._max_episode_steps, self.task_description = TASKS[task]
         if max_episode_steps is not None:
-            if max_episode_steps < 1:
-                raise ValueError(f"an episode needs at least one step, not {max_episode_steps} (--env.episode_length)")
             self._max_episode_steps = max_episode_steps
         self.env = make_env("rgb", resolution, clearance_mm, self.cameras)
         self.metadata = {**self.metadata, "render_fps": int(self.env.unwrapped.control_freq)}

@@ -37,6 +37,10 @@ def test_expert_prints_success_and_writes_a_three_camera_video(tmp_path):
     (("compose", "--lerobot", "nowhere"), "give PATH:SUBTASK or PATH:SUBTASK:NAME, SUBTASK one of pick, move, insert"),
     (("record", "gear-insertion-demos", "--lerobot", "ckpt:fly"), "give PATH:SUBTASK"),
     (("record", "gear-insertion-demos", "--ray", "127.0.0.1:1"), "no Ray cluster answers at 127.0.0.1:1"),
+    (("record", "gear-insertion-demos", "--ray", "ray://127.0.0.1:1"), "no Ray cluster answers at ray://127.0.0.1:1"),
+    (("record", "gear-insertion-demos", "--ray", "not-an-address"),
+     "argument --ray: must be auto, local, HOST:PORT or ray://HOST:PORT, not 'not-an-address'"),
+    (("compose", "--ray", ""), "argument --ray: must be auto, local, HOST:PORT or ray://HOST:PORT, not ''"),
     (("library", "add", "--lerobot", "ckpt:insert:act-1"), "the controller's name must be letters, digits and _"),
     (("library", "add", "--lerobot", "nowhere:insert:act_insert"), "no LeRobot policy checkpoint at nowhere"),
 ])
@@ -130,7 +134,7 @@ def _broken_info(ds: Path) -> list[str]:
     (lambda ds: ["record", "gear-insertion-demos", "--root", str(ds), "--resume", "--resolution", "32"],
      "but this run asks for resolution 32 (it has 64)"),
     (lambda ds: ["record", "gear-insertion-demos", "--root", str(ds), "--resume", "--seed", "7"],
-     "first seed 7 (it continues from seed"),
+     "first seed 7 (it began at seed 0 and continues from seed"),
     (lambda ds: ["record", "gear-full-task-demos", "--root", str(ds), "--resume"],
      "was recorded from recipe 'gear-insertion-demos', not 'gear-full-task-demos'"),
 ])

@@ -117,3 +117,16 @@ def test_lerobots_viewer_opens_our_dataset(insertion_demos, tmp_path):
     assert lerobots | {"/progress", "/stage", "/controller"} <= ours, sorted(ours)
     res = run_cli("dataset", "view", str(insertion_demos), "--episode", "5")
     assert res.returncode == 2 and "has episodes 0 to 1, not 5" in res.stderr, res.stderr[-2000:]
+
+
+@pytest.mark.parametrize("flag, message", [
+    ("--env.resolution=0", "--env.resolution must be between 16 and 512 pixels, not 0"),
+    ("--env.cameras=[wrist]", "GearAssembly's cameras are head, left_forearm, right_forearm, not ['wrist'] (--env.cameras)"),
+    ("--env.task=stack", "GearAssembly has no task 'stack': choose one of insert, full (--env.task)"),
+])
+def test_lerobot_eval_names_a_bad_env_setting_in_one_line(tmp_path, flag, message):
+    """Under LeRobot's own command the plugin's refusal is one line and exit 2, before the policy loads (there is
+    none here), not the parser's traceback."""
+    res = lerobot("lerobot-eval", f"--policy.path={tmp_path}", "--env.type=gear_assembly", flag, timeout=300)
+    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr[-3000:]
+    assert res.stderr.strip().splitlines()[-1] == f"error: {message}"

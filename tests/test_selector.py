@@ -149,6 +149,36 @@ def test_a_checkpoint_is_replaced_whole_or_not_at_all(world, tmp_path):
     assert json.loads((folder / "train_log.json").read_text()) == {"epochs": 1, "processes": 1}
 
 
+@pytest.mark.parametrize("controller, damage, message", [
+    ("dmp_insert", "missing", "no DMP library in {model} (expected dmp.json and dmp.safetensors)"),
+    ("cnn_insert", "truncated", "{model}/insert/model.safetensors does not hold the weights of this CNN policy"),
+    ("cnn_insert", "pickled", "{model}/insert/model.safetensors does not hold the weights of this CNN policy"),
+])
+def test_a_missing_or_damaged_controller_model_is_named_by_compose(world, tmp_path, controller, damage, message):
+    """The controller's own model is what is wrong, and the line says so, not that the dynamics model was trained on
+    another model's rollouts."""
+    import shutil
+
+    from conftest import run_cli, tree_digest
+    from test_outputs import _cnn_checkpoint
+    from test_writers import one_line_error
+
+    root = Path(shutil.copytree(world[0], tmp_path / "world"))
+    (root / "dynamics" / "mp_insert").rename(root / "dynamics" / controller)
+    model = tmp_path / "model"
+    if damage != "missing":
+        weights = _cnn_checkpoint(model / "insert") / "model.safetensors"
+        if damage == "truncated":
+            weights.write_bytes(weights.read_bytes()[:-100])
+        else:
+            torch.save({"weights": torch.zeros(3)}, weights)
+    before = tree_digest(root), tree_digest(model)
+    line = one_line_error(run_cli("compose", "--models", str(root), f"--{controller.split('_')[0]}", str(model),
+                                  "--episodes", "1", "--out", str(tmp_path / "run")))
+    assert message.format(model=model) in line, line
+    assert (tree_digest(root), tree_digest(model)) == before and not (tmp_path / "run").exists()
+
+
 def test_a_composed_run_continues_only_with_its_own_settings(tmp_path):
     from policy_composer.app.composition import RunError, check_out
 

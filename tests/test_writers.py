@@ -81,6 +81,11 @@ def test_a_killed_writer_leaves_no_stale_lock(tmp_path):
     ('name = ".hidden"\n', "recipe name '.hidden' is not a plain name"),
     ("name = [unclosed\n", "is not a readable TOML file"),
     (b"\x89PNG\r\n\x1a\n\x00\xff", "is not a readable TOML file"),
+    ('name = "mine"\nepisodes = "many"\n', 'episodes must be a whole number, not \'many\''),
+    ('name = "mine"\nepisodes = 0\n', "recipe mine: episodes must be at least 1, not 0"),
+    ('name = "mine"\n[expert]\ngrip = 1\n', "[expert]: unknown keys ['grip']"),
+    ('name = "mine"\n[expert]\ngrasp_offset_mm = -1e9\n', "grasp_offset_mm must be between 0 and 19 mm"),
+    ("", "missing keys ['name']"),
 ])
 def test_a_bad_recipe_file_is_refused_before_anything_is_written(tmp_path, text, message):
     base = load_recipe("gear-insertion-demos")
@@ -88,9 +93,11 @@ def test_a_bad_recipe_file_is_refused_before_anything_is_written(tmp_path, text,
     recipe.parent.mkdir(parents=True)
     if isinstance(text, bytes):
         recipe.write_bytes(text)
-    else:  # the rest of a valid recipe, so that only the name is wrong
-        recipe.write_text(text + "".join(f'{k} = {json.dumps(getattr(base, k))}\n'
-                                         for k in ("description", "task", "episodes", "driver", "start")))
+    else:  # the rest of a valid recipe, so that only what `text` says is wrong (a table last, as TOML has it)
+        given, table, rest = text.partition("\n[")
+        recipe.write_text(given + "\n" * bool(given) + "".join(
+            f'{k} = {json.dumps(getattr(base, k))}\n' for k in ("description", "task", "episodes", "driver", "start")
+            if f"{k} =" not in given) + table.lstrip("\n") + rest)
     line = one_line_error(run_cli("record", str(recipe), "--episodes", "1", cwd=recipe.parent))
     assert message in line and ("TOML" not in message or str(recipe) in line)
     assert sorted(p.name for p in tmp_path.rglob("*")) == ["a", "b", "recipe.toml"]
@@ -162,6 +169,9 @@ def test_run_files_that_do_not_read_or_no_longer_fit(tmp_path):
     out.mkdir()
     (out / "run.json").write_text("{not json")
     with pytest.raises(RunError, match="run.json is not readable JSON .* compose into another --out"):
+        begin_run(out, resume=True, settings={"resolution": 64})
+    (out / "run.json").write_text("[1, 2]")
+    with pytest.raises(RunError, match=r"run.json is not readable JSON \(a JSON list, not an object\)"):
         begin_run(out, resume=True, settings={"resolution": 64})
     # A run killed right after writing its settings: the next new run there is labelled with its own.
     (out / "run.json").write_text(json.dumps({"config": {"horizon": 3}}))

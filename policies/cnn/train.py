@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from contextlib import nullcontext
 from dataclasses import asdict
 from pathlib import Path
 
@@ -19,7 +20,13 @@ import torch
 from policy_composer.data.features import DatasetError, image_key, read_sidecar
 from policy_composer.data.frames import load_frames, random_shift
 from policy_composer.data.recipes import check_recipe
-from policy_composer.learning.checkpoint import CheckpointError, load_checkpoint, load_config, save_checkpoint
+from policy_composer.learning.checkpoint import (
+    CheckpointError,
+    load_checkpoint,
+    load_config,
+    model_writer,
+    save_checkpoint,
+)
 from policy_composer.learning.snapshot import Snapshots
 from policy_composer.learning.training import adam, fit_epochs
 from policy_composer.policies.cnn.configuration_cnn import CORRECTIONS, DEMONSTRATIONS, PROPRIOCEPTION, CNNPolicyConfig
@@ -64,6 +71,7 @@ def load_demonstrations(root: str | Path | Sequence[str | Path], config: CNNPoli
     subtask (see DEMONSTRATIONS), as images (N, 3, S, S) uint8, arm state (N, state_dim) and action target
     (N, action_dim)."""
     if not isinstance(root, (str, Path)):
+        check_distinct(root)
         parts = [load_demonstrations(r, config, episodes, progress) for r in root]
         return {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
     recipe, stages = DEMONSTRATIONS[config.subtask]
@@ -90,10 +98,28 @@ def load_demonstrations(root: str | Path | Sequence[str | Path], config: CNNPoli
     return data
 
 
+def check_distinct(roots: Sequence[str | Path]) -> None:
+    """Refuse a dataset listed twice: its frames would weigh twice in the training, silently."""
+    seen: dict[Path, str | Path] = {}
+    for root in roots:
+        same = seen.setdefault(Path(root).resolve(), root)
+        if same is not root:
+            raise DatasetError(f"--dataset lists {root} twice{f' (as {same})' if str(same) != str(root) else ''}: "
+                               "its frames would count twice; list each dataset once")
+
+
 def train_cnn_policy(root: str | Path | Sequence[str | Path], config: CNNPolicyConfig, out: str | Path | None = None,
                      progress: bool = True,
                      data: dict[str, torch.Tensor] | None = None) -> tuple[CNNPolicy, list[float]]:
-    """Fit the policy by maximum likelihood of the demonstrated actions; returns it and the loss per epoch."""
+    """Fit the policy by maximum likelihood of the demonstrated actions; returns it and the loss per epoch. Its
+    checkpoint folder `out` is checked and locked before the data is read."""
+    if not isinstance(root, (str, Path)):
+        check_distinct(root)
+    with model_writer(out, CNNPolicyConfig) if out is not None else nullcontext():
+        return _train(root, config, out, progress, data)
+
+
+def _train(root, config: CNNPolicyConfig, out, progress: bool, data) -> tuple[CNNPolicy, list[float]]:
     t0 = time.perf_counter()
     torch.manual_seed(config.seed)
     data = data if data is not None else load_demonstrations(root, config, progress=progress)
@@ -138,7 +164,7 @@ def load_cnn_library(path: str | Path) -> dict[str, CNNPolicy]:
     if (path / "config.json").is_file():
         policy = load_cnn_policy(path)
         return {policy.config.subtask: policy}
-    policies = {s: load_cnn_policy(path / s) for s in DEMONSTRATIONS if (path / s / "config.json").is_file()}
+    policies = {s: load_cnn_policy(path / s, subtask=s) for s in DEMONSTRATIONS if (path / s / "config.json").is_file()}
     if not policies:
         raise CheckpointError(f"no CNN policy in {path} (expected a checkpoint, or one in a subfolder per subtask: "
                               f"{', '.join(DEMONSTRATIONS)}); train them with `policy-composer train policy --subtask "
@@ -146,9 +172,14 @@ def load_cnn_library(path: str | Path) -> dict[str, CNNPolicy]:
     return policies
 
 
-def load_cnn_policy(path: str | Path, camera: str | None = None, state_dim: int | None = None) -> CNNPolicy:
-    """Load a checkpoint; refuse one trained for another camera or state size, saying which."""
+def load_cnn_policy(path: str | Path, camera: str | None = None, state_dim: int | None = None,
+                    subtask: str | None = None) -> CNNPolicy:
+    """Load a checkpoint; refuse one trained for another subtask, camera or state size, saying which."""
     config = load_config(path, CNNPolicyConfig, "CNN policy", "policy-composer train policy")
+    if subtask is not None and config.subtask != subtask:
+        raise CheckpointError(f"checkpoint {path} is a CNN policy of the {config.subtask} subtask (its config.json "
+                              f"says so), in the {subtask} policy's place; train the {subtask} policy into it with "
+                              f"`policy-composer train policy --subtask {subtask} --out {path}`")
     if camera is not None and config.camera != camera:
         raise CheckpointError(f"checkpoint {path} was trained on camera {config.camera!r}, but this controller reads "
                               f"{camera!r}; train one for {camera!r} or configure the controller with "

@@ -19,13 +19,14 @@ from pathlib import Path
 
 import numpy as np
 
-from policy_composer.data.atomic import replacing_folder
+from policy_composer.data.atomic import replacing_folder, safetensors_errors
 from policy_composer.learning.checkpoint import CheckpointError, check_finite
 from policy_composer.policies.arm import Outcome, Segment, run_activation
 from policy_composer.policies.dmp.configuration_dmp import DMPConfig
 from policy_composer.policies.planning import VELOCITY_LIMIT, time_parameterize
 from policy_composer.policies.subtasks import SUBTASKS, TASK_SEQUENCE, SubtaskController, Waypoint
 
+DMP_FILES = ("dmp.safetensors", "dmp.json")
 MIN_DEMO_STEPS = 5  # shorter movements (a few mm of alignment) are not worth a DMP: they go straight in joint space
 
 
@@ -50,7 +51,8 @@ class DMPLibrary:
             for i, p in enumerate(prims):
                 if p is not None:
                     tensors[f"{name}.{i}"] = p.weights.astype(np.float64)
-        with replacing_folder(directory) as tmp:  # a reader sees the old library or the new one, whole
+        # A reader sees the old library or the new one, whole; a folder holding anything else is not replaced.
+        with replacing_folder(directory, DMP_FILES, "a DMP library") as tmp, safetensors_errors(directory):
             save_file(tensors, str(tmp / "dmp.safetensors"))
             (tmp / "dmp.json").write_text(json.dumps({"config": asdict(self.config), "durations": layout,
                                                       "demonstrations": self.demonstrations}, indent=1))

@@ -10,13 +10,15 @@ applied to the left arm only (the right arm holds), like every controller of the
 from __future__ import annotations
 
 import functools
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from policy_composer.data.frames import to_model_image
-from policy_composer.learning.checkpoint import check_finite
+from policy_composer.learning.checkpoint import CheckpointError, check_finite
 from policy_composer.policies.subtasks import SUBTASKS, LearnedController, Subtask, check_camera
 from policy_composer.tasks.spec import ACTION_NAMES, STATE_NAMES
 
@@ -51,6 +53,18 @@ def lerobot_label(path: str | Path) -> str:
     return f"{POLICY_NAMES.get(kind, kind)} (LeRobot)"
 
 
+@contextmanager
+def damaged_files(path: Path, what: str) -> Iterator[None]:
+    """A checkpoint file that LeRobot cannot read (truncated, edited, of another version), said in one line that
+    names it: LeRobot's own error is a parser's or safetensors' that names no file."""
+    try:
+        yield
+    except Exception as e:
+        first = (str(e).strip().splitlines() or [type(e).__name__])[0][:200]
+        raise CheckpointError(f"{path} {what} ({first}); train the policy again with lerobot-train, or restore "
+                              "the checkpoint from a copy") from None
+
+
 class LeRobotPolicyController(LearnedController):
     def __init__(self, env, pretrained_path: str | Path, subtask: Subtask = SUBTASKS["insert"], name: str | None = None,
                  task: str = "Insert the gear held by the left gripper onto the peg held by the right arm.",
@@ -63,7 +77,8 @@ class LeRobotPolicyController(LearnedController):
         if not (path / "config.json").is_file():
             raise FileNotFoundError(f"{path} is not a LeRobot policy checkpoint (no config.json); pass the "
                                     f"`pretrained_model` folder that lerobot-train saves")
-        cfg = PreTrainedConfig.from_pretrained(path)
+        with damaged_files(path / "config.json", "is not a LeRobot policy config"):
+            cfg = PreTrainedConfig.from_pretrained(path)
         cfg.device, cfg.pretrained_path = "cpu", str(path)
         super().__init__(env, subtask, name or f"{cfg.type}_{subtask.name}", max_steps)
         self.images = {}
@@ -73,16 +88,18 @@ class LeRobotPolicyController(LearnedController):
                 check_camera(self.env, camera, f"the {cfg.type} policy at {path}")
                 self.images[key] = (camera, int(feature.shape[-1]))
             elif key == "observation.state" and tuple(feature.shape) != (len(STATE_NAMES),):
-                raise ValueError(f"the policy at {path} takes a state of shape {tuple(feature.shape)}, "
+                raise CheckpointError(f"the policy at {path} takes a state of shape {tuple(feature.shape)}, "
                                  f"GearAssembly-v1 gives ({len(STATE_NAMES)},)")
         if tuple(cfg.output_features["action"].shape) != (len(ACTION_NAMES),):
-            raise ValueError(f"the policy at {path} outputs actions of shape "
+            raise CheckpointError(f"the policy at {path} outputs actions of shape "
                              f"{tuple(cfg.output_features['action'].shape)}, "
                              f"GearAssembly-v1 takes ({len(ACTION_NAMES)},)")
-        self.policy = get_policy_class(cfg.type).from_pretrained(path, config=cfg).eval()
+        with damaged_files(path / "model.safetensors", "does not hold the weights of this policy"):
+            self.policy = get_policy_class(cfg.type).from_pretrained(path, config=cfg).eval()
         check_finite(path / "model.safetensors", self.policy.state_dict(), "train it again with lerobot-train")
-        self.preprocess, self.postprocess = make_pre_post_processors(
-            cfg, pretrained_path=str(path), preprocessor_overrides={"device_processor": {"device": "cpu"}})
+        with damaged_files(path, "does not hold readable processors (policy_preprocessor.json and its files)"):
+            self.preprocess, self.postprocess = make_pre_post_processors(
+                cfg, pretrained_path=str(path), preprocessor_overrides={"device_processor": {"device": "cpu"}})
         self.task = task
         self.obs_keys = tuple(f"sensor_data.{c}.rgb" for c, _ in self.images.values()) + ("extra.state",)
 

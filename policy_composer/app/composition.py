@@ -141,7 +141,7 @@ def compose_library(models: str | Path, sources, config: ComposeConfig, seeds: l
     from tqdm import tqdm
 
     from policy_composer.app.workers import in_process, run_episodes
-    from policy_composer.policies.library import model_ids
+    from policy_composer.policies.library import check_models, model_ids
     from policy_composer.selector.world_model import GearWorldModel
 
     out = Path(out)
@@ -149,6 +149,7 @@ def compose_library(models: str | Path, sources, config: ComposeConfig, seeds: l
         check_out(out, resume)  # first: a finished run in `out` is refused before anything loads
         torch.set_num_threads(1)
         world = GearWorldModel.load(models, goal_score=goal_score)
+        check_models(list(world.dynamics), sources)
         ids = model_ids(list(world.dynamics), sources)
         world.check_controllers(ids)
         settings = {"models": str(Path(models).resolve()), "controller_models": ids, "config": asdict(config),
@@ -192,6 +193,8 @@ def check_out(out: Path, resume: bool, settings: dict | None = None) -> None:
     if resume and settings is not None and stored.is_file():
         try:
             own = json.loads(stored.read_text())
+            if not isinstance(own, dict):
+                raise ValueError(f"a JSON {type(own).__name__}, not an object")
         except (ValueError, UnicodeDecodeError) as e:
             raise RunError(f"{stored} is not readable JSON ({e}): it holds the settings --resume continues with; "
                            "restore it, or compose into another --out") from None

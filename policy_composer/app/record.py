@@ -18,7 +18,14 @@ from policy_composer.data import interrupt, journal
 from policy_composer.data.features import read_sidecar
 from policy_composer.data.lock import one_writer
 from policy_composer.data.recipes import Recipe, RecipeError
-from policy_composer.policies.library import LibrarySources, all_names, build_library, cameras_needed, model_ids
+from policy_composer.policies.library import (
+    LibrarySources,
+    all_names,
+    build_library,
+    cameras_needed,
+    check_models,
+    model_ids,
+)
 from policy_composer.tasks.rollout import make_env
 from policy_composer.tasks.spec import CONTROL_FREQ, EXPERT_PHASES, EnvSettings
 
@@ -60,6 +67,7 @@ def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None,
     with one_writer(root):  # a second recording into it stops at once
         sources = sources or LibrarySources()
         controllers = recipe_controllers(recipe)
+        check_models(controllers, sources)
         models = model_ids(controllers, sources)
         per_unit = episodes if episodes is not None else recipe.episodes
         if resume:
@@ -69,11 +77,14 @@ def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None,
             check_resume(root, previous, recipe, seed, settings, models)
             settings, seed = EnvSettings(**previous["env"]), previous["next_seed"]
         settings, seed = settings or EnvSettings(), seed or 0
+        first_seed = first_seed_of(previous) if previous else None
+        first_seed = seed if first_seed is None else first_seed
         needed = cameras_needed(controllers, sources)
         if not previous:  # the recipe's cameras, and any others its controllers read
             settings = replace(settings, cameras=tuple(dict.fromkeys((*recipe.cameras, *needed))))
         writer = LeRobotWriter(root, recipe.task, CONTROL_FREQ, settings.resolution, settings.cameras, resume=resume,
-                               metadata={"recipe": recipe.name, "env": asdict(settings), "controller_models": models,
+                               metadata={"recipe": recipe.name, "env": asdict(settings), "first_seed": first_seed,
+                                         "controller_models": models,
                                          "expert": asdict(recipe.expert), "train_episodes": recipe.train_episodes})
         recorded = Counter(e.get("controller_name") for e in writer.episodes)  # per controller, when resuming
         units = controllers if recipe.driver == "controllers" else (None,)
@@ -97,14 +108,22 @@ def check_resume(root: Path, previous: dict, recipe: Recipe, seed: int | None, s
     ours = asdict(settings) if settings is not None else {}
     ours.pop("cameras", None)  # the recipe's and its controllers' cameras, not a setting of the run
     clash = [f"{k} {ours[k]} (it has {v})" for k, v in previous["env"].items() if k in ours and ours[k] != v]
-    if seed is not None and seed != previous["next_seed"]:
-        clash.append(f"first seed {seed} (it continues from seed {previous['next_seed']})")
+    if seed is not None and seed not in (first_seed_of(previous), previous["next_seed"]):  # the command that began it
+        clash.append(f"first seed {seed} (it began at seed {first_seed_of(previous)} and continues from seed "
+                     f"{previous['next_seed']})")
     clash += [f"another {name} model ({model}, it has {previous.get('controller_models', {}).get(name)})"
               for name, model in models.items() if previous.get("controller_models", {}).get(name, model) != model]
     if clash:
         raise RecipeError(f"--resume continues {root} with its own settings, but this run asks for "
                           f"{'; '.join(clash)}: give the dataset's own (or leave them out), or record into a new "
                           f"--root")
+
+
+def first_seed_of(sidecar: dict) -> int | None:
+    """The seed a recording began at (its first episode's, for datasets recorded before it was kept)."""
+    if "first_seed" in sidecar:
+        return sidecar["first_seed"]
+    return min((e["seed"] for e in sidecar.get("episodes", []) if "seed" in e), default=None)
 
 
 def _record_unit(pool, writer, unit: str | None, done: int, target: int, seed: int, attempts: int | None,

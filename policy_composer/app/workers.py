@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -62,13 +63,29 @@ def use_ray(address: str) -> int:
     return int(ray.cluster_resources().get("CPU", 1))
 
 
+RAY_FORMS = "auto, local, HOST:PORT or ray://HOST:PORT"
+RAY_ADDRESS = re.compile(r"^(ray://)?(?P<host>[A-Za-z0-9][A-Za-z0-9.-]*|\[[0-9A-Fa-f:]+\]):(?P<port>\d{1,5})$")
+
+
+def ray_endpoint(address: str) -> tuple[str, int] | None:
+    """The host and port of a Ray address (HOST:PORT, a head's; ray://HOST:PORT, a client server's), None for
+    "auto" and "local"; anything else is a ClusterError naming the forms."""
+    if address in ("auto", "local"):
+        return None
+    match = RAY_ADDRESS.match(address)
+    if match is None or not 0 < int(match["port"]) < 65536:
+        raise ClusterError(f"--ray takes {RAY_FORMS}, not {address!r}")
+    return match["host"].strip("[]"), int(match["port"])
+
+
 def check_reachable(address: str, timeout: float = 10.0) -> None:
-    """A HOST:PORT address answers (Ray would wait minutes for one that does not, and say nothing)."""
-    host, _, port = address.rpartition(":")
-    if not host or not port.isdigit():
-        return  # "auto", "local" or a ray:// address: Ray itself finds the cluster or says why not
+    """A HOST:PORT or ray://HOST:PORT address answers (Ray would wait minutes for one that does not, and say
+    nothing)."""
+    endpoint = ray_endpoint(address)
+    if endpoint is None:
+        return  # "auto" or "local": Ray itself finds the cluster or says why not
     try:
-        socket.create_connection((host, int(port)), timeout=timeout).close()
+        socket.create_connection(endpoint, timeout=timeout).close()
     except OSError as e:
         raise ClusterError(f"no Ray cluster answers at {address} ({e.strerror or e}): start its head with `ray start "
                            "--head` and pass the address it prints") from None

@@ -9,10 +9,30 @@ complete: a folder under its own name always holds every file it was written wit
 from __future__ import annotations
 
 import os
+import re
 import shutil
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+
+
+class FolderTaken(ValueError):
+    """An output folder holding files that the command writing there did not write: replacing it would lose them."""
+
+
+def check_replaceable(folder: str | Path, own: Collection[str], what: str) -> None:
+    """Refuse to replace `folder` unless it is missing, empty, or holds nothing but the files `what` consists of
+    (`own`): a model written over a dataset or a user's notes would delete them."""
+    folder = Path(folder)
+    if not folder.exists():
+        return
+    if not folder.is_dir():
+        raise FolderTaken(f"{folder} is a file, not a folder for {what}: give --out a new or empty folder")
+    foreign = sorted(p.name for p in folder.iterdir() if p.name not in own)
+    if foreign:
+        shown = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3 else "")
+        raise FolderTaken(f"{folder} holds {shown}, which {what} does not consist of: writing {what} there would "
+                          "replace the folder and lose them; give --out a new or empty folder, or move them away")
 
 
 def _partial(path: Path) -> Path:
@@ -40,9 +60,12 @@ def write_text(path: str | Path, text: str) -> Path:
 
 
 @contextmanager
-def replacing_folder(folder: str | Path) -> Iterator[Path]:
-    """Yield an empty folder beside `folder` to fill; when the block ends without error it replaces `folder`."""
+def replacing_folder(folder: str | Path, own: Collection[str] | None = None, what: str = "") -> Iterator[Path]:
+    """Yield an empty folder beside `folder` to fill; when the block ends without error it replaces `folder`. With
+    `own` (the files that `what` consists of), a `folder` holding anything else is refused first."""
     folder = Path(folder)
+    if own is not None:
+        check_replaceable(folder, own, what)
     folder.parent.mkdir(parents=True, exist_ok=True)
     tmp, old = _partial(folder), folder.with_name(f".{folder.name}.old")
     shutil.rmtree(tmp, ignore_errors=True)
@@ -56,3 +79,16 @@ def replacing_folder(folder: str | Path) -> Iterator[Path]:
         shutil.rmtree(old, ignore_errors=True)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+@contextmanager
+def safetensors_errors(path: str | Path) -> Iterator[None]:
+    """safetensors' write failures (a full or read-only disk) raised as the OSError they are, naming `path`: its
+    own error carries the OS's code only in its text."""
+    try:
+        yield
+    except Exception as e:
+        code = re.search(r"os error (\d+)", str(e))
+        if type(e).__name__ != "SafetensorError" or code is None:
+            raise
+        raise OSError(int(code[1]), os.strerror(int(code[1])), str(path)) from None

@@ -116,8 +116,9 @@ def check_features(root: str | Path, info: dict, required: dict[str, tuple[int, 
 
 
 def check_files(root: Path, info: dict) -> None:
-    """Raise DatasetError naming the first parquet file whose rows do not read, the video files that are missing, or
-    the videos that do not hold their episodes' frames."""
+    """Raise DatasetError naming the first parquet file whose rows do not read or differ from what was recorded, the
+    first value that is not finite, the video files that are missing, or the videos that do not hold their episodes'
+    frames."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -131,12 +132,41 @@ def check_files(root: Path, info: dict) -> None:
     if changed:
         raise DatasetError(f"{root / changed[0]} does not hold what was recorded (its SHA-256 differs from the one "
                            f"saved with it); {REPAIR}")
+    bad = first_nonfinite(root)
+    if bad:
+        raise DatasetError(f"{root} holds a value that is not finite (NaN or Inf): {bad}; a model trained on it "
+                           "would compute with it; record the dataset again, or remove that episode with "
+                           "`lerobot-edit-dataset --operation.type=delete_episodes`")
     missing = missing_videos(root, info)
     if missing:
         shown = ", ".join(missing[:3]) + (", ..." if len(missing) > 3 else "")
         raise DatasetError(f"{root} is missing {len(missing)} video file(s) its episodes point to ({shown}); "
                            f"{REPAIR}")
     check_videos(root, info)
+
+
+def first_nonfinite(root: Path) -> str | None:
+    """Where the first NaN or Inf of the data files' float columns is (file, column, episode and frame), or None."""
+    import numpy as np
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    for path in sorted((root / "data").rglob("*.parquet")):
+        table = pq.read_table(path)
+        for name in table.column_names:
+            column = table.column(name).combine_chunks()
+            while pa.types.is_list(column.type) or pa.types.is_fixed_size_list(column.type):
+                column = column.flatten()
+            if not pa.types.is_floating(column.type):
+                continue
+            values = column.to_numpy(zero_copy_only=False)
+            bad = np.flatnonzero(~np.isfinite(values))
+            if len(bad):
+                row = int(bad[0]) * table.num_rows // len(values)  # list columns: equal lengths per row
+                where = ", ".join(f"{k} {table.column(k)[row].as_py()}" for k in ("episode_index", "frame_index")
+                                  if k in table.column_names)
+                return f"{path.relative_to(root)}, column {name!r}, {where} ({values[bad[0]]})"
+    return None
 
 
 def data_digests(root: Path) -> dict[str, str]:

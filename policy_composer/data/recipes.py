@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import re
 import tomllib
-from dataclasses import dataclass, field, fields
+import types
+import typing
+from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
 
 from policy_composer.data.features import read_info, read_sidecar
-from policy_composer.tasks.spec import CAMERA_NAMES, EXPERT_PHASES, GOAL_FLAGS, START_STATES
+from policy_composer.tasks.spec import CAMERA_NAMES, EXPERT_PHASES, GOAL_FLAGS, GRASP_OFFSET_MM, START_STATES
 
 RECIPE_DIR = Path(__file__).resolve().parents[2] / "datasets" / "recipes"
 DRIVERS = ("expert", "controllers", "dagger")
@@ -47,6 +49,13 @@ class ExpertSettings:
     def __post_init__(self):
         if self.labels not in LABELS:
             raise RecipeError(f"[expert] labels must be one of {list(LABELS)}, not {self.labels!r}")
+        low, high = GRASP_OFFSET_MM
+        if not low <= self.grasp_offset_mm <= high:
+            raise RecipeError(f"[expert] grasp_offset_mm must be between {low:g} and {high:g} mm, not "
+                              f"{self.grasp_offset_mm!r}")
+        for name in ("arrival_error_mm", "gear_arrival_mm", "noise_mm"):
+            if getattr(self, name) < 0:
+                raise RecipeError(f"[expert] {name} must be at least 0, not {getattr(self, name)!r}")
 
     def config(self):
         """The scripted expert's ExpertConfig for these settings (the simulator loads only when it is asked for)."""
@@ -87,6 +96,10 @@ class Recipe:
 
     def __post_init__(self):
         check_plain_name(self.name, "recipe")
+        if self.episodes < 1:
+            raise RecipeError(f"recipe {self.name}: episodes must be at least 1, not {self.episodes}")
+        if self.train_episodes is not None and self.train_episodes < 0:
+            raise RecipeError(f"recipe {self.name}: train_episodes must be at least 0, not {self.train_episodes}")
         if self.driver not in DRIVERS:
             raise RecipeError(f"recipe {self.name}: driver {self.driver!r} is not one of {DRIVERS}")
         if self.driver == "dagger" and len(self.controllers) != 1:
@@ -140,12 +153,49 @@ def load_recipe(name_or_path: str | Path) -> Recipe:
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
         raise RecipeError(f"recipe {path} is not a readable TOML file ({e}); see datasets/recipes/ for the "
                           "format") from None
-    known = {f.name for f in fields(Recipe)}
-    unknown = set(raw) - known
-    if unknown:
-        raise RecipeError(f"recipe {path}: unknown keys {sorted(unknown)}; a recipe has {sorted(known)}")
-    raw["expert"] = ExpertSettings(**raw.get("expert", {}))
-    for key in ("record_phases", "controllers", "cameras"):
-        if key in raw:
-            raw[key] = tuple(raw[key])
+    expert = raw.pop("expert", {})
+    if not isinstance(expert, dict):
+        raise RecipeError(f"recipe {path}: expert must be a table ([expert]), not {expert!r}")
+    raw = typed_fields(Recipe, raw, f"recipe {path}", skip=("expert",))
+    raw["expert"] = ExpertSettings(**typed_fields(ExpertSettings, expert, f"recipe {path}, [expert]"))
     return Recipe(**raw)
+
+
+def typed_fields(cls: type, raw: dict, where: str, skip: tuple[str, ...] = ()) -> dict:
+    """`raw`'s keys checked against `cls`'s fields, their names, types and required ones, in one RecipeError that
+    names the key and what it must be (a dataclass would say TypeError, or take a string for a number); lists as
+    tuples."""
+    hints = typing.get_type_hints(cls)
+    own = [f for f in fields(cls) if f.name not in skip]
+    unknown = sorted(set(raw) - {f.name for f in own})
+    if unknown:
+        raise RecipeError(f"{where}: unknown keys {unknown}; it takes {sorted(f.name for f in own)}")
+    missing = [f.name for f in own if f.name not in raw and f.default is MISSING and f.default_factory is MISSING]
+    if missing:
+        raise RecipeError(f"{where}: missing keys {missing}; see datasets/recipes/ for the format")
+    for name, value in raw.items():
+        if not _fits(value, hints[name]):
+            raise RecipeError(f"{where}: {name} must be {_describe(hints[name])}, not {value!r}")
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in raw.items()}
+
+
+def _fits(value: object, hint) -> bool:
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        return any(_fits(value, a) for a in args)
+    if origin is tuple:
+        return isinstance(value, list | tuple) and all(_fits(v, args[0]) for v in value)
+    if hint is float:
+        return isinstance(value, int | float) and not isinstance(value, bool)
+    if hint is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    return hint is type(None) and value is None or isinstance(hint, type) and isinstance(value, hint)
+
+
+def _describe(hint) -> str:
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        return " or ".join(_describe(a) for a in args if a is not type(None))
+    if origin is tuple:
+        return f"a list, each item {_describe(args[0])}"
+    return {int: "a whole number", float: "a number", str: "a string", bool: "true or false"}.get(hint, str(hint))

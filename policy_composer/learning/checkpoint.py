@@ -2,21 +2,25 @@
 
 No pickle anywhere: a checkpoint folder holds `model.safetensors`, `config.json` and, optionally, the
 training log. Loading checks the config against the dataclass, so a checkpoint from another configuration
-or another kind of model fails with an error that says so. The folder is written aside and renamed into place,
-so it is always one training's whole output. `config.json` also names the models it was trained with (by
-`weights_id`), so parts that must belong together can be checked.
+or another kind of model fails with an error that says so; the weights file keeps its own copy of the config, so a
+`config.json` edited after the training is refused too. The folder is written aside and renamed into place, so it
+is always one training's whole output, and only over a folder that holds nothing but a checkpoint of the same kind.
+`config.json` also names the models it was trained with (by `weights_id`), so parts that must belong together can
+be checked.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, fields
 from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
 
-from policy_composer.data.atomic import replacing_folder
+from policy_composer.data.atomic import FolderTaken, check_replaceable, replacing_folder, safetensors_errors
+from policy_composer.data.lock import one_writer
 from policy_composer.learning.training import is_main_process, processes, wait_for_everyone
 
 if TYPE_CHECKING:  # torch is imported where a model is saved or built, so that the command line starts fast
@@ -25,8 +29,38 @@ if TYPE_CHECKING:  # torch is imported where a model is saved or built, so that 
 C = TypeVar("C")
 
 
+CHECKPOINT_FILES = ("model.safetensors", "config.json", "train_log.json")
+
+
 class CheckpointError(ValueError):
     """A checkpoint that is missing, of another kind of model, or from another configuration."""
+
+
+def check_out(out: str | Path, config_cls: type) -> None:
+    """Refuse an output folder that holds anything but a checkpoint of `config_cls`'s kind: it would be replaced."""
+    out = Path(out)
+    what = f"a {config_cls.__name__} checkpoint"
+    check_replaceable(out, CHECKPOINT_FILES, what)
+    try:
+        kind = json.loads((out / "config.json").read_text()).get("kind")
+    except (OSError, ValueError, AttributeError):
+        return  # none, or a damaged one of ours: replaced
+    if kind not in (None, config_cls.__name__):
+        raise FolderTaken(f"{out} holds a {kind} checkpoint, not {what}: give --out another folder")
+
+
+@contextmanager
+def model_writer(out: str | Path, config_cls: type | None = None) -> Iterator[None]:
+    """Hold the writer lock of `out` for a training whose models go there, after checking that the folder may be
+    replaced by a `config_cls` checkpoint (if given): a second training into it, or one over what is not its kind's
+    checkpoint, stops before any work."""
+    if config_cls is not None:
+        check_out(out, config_cls)
+    if not is_main_process():  # data-parallel: the first process writes
+        yield
+        return
+    with one_writer(out):
+        yield
 
 
 def save_checkpoint(model: nn.Module, config, out: str | Path, log: dict | None = None,
@@ -37,8 +71,11 @@ def save_checkpoint(model: nn.Module, config, out: str | Path, log: dict | None 
 
     out = Path(out)
     if is_main_process():
+        check_out(out, type(config))
         with replacing_folder(out) as tmp:
-            save_file({k: v.contiguous() for k, v in model.state_dict().items()}, str(tmp / "model.safetensors"))
+            with safetensors_errors(out):
+                save_file({k: v.contiguous() for k, v in model.state_dict().items()}, str(tmp / "model.safetensors"),
+                          metadata={"config": json.dumps(asdict(config))})
             meta = {"kind": type(config).__name__, "trained_with": trained_with or {}}
             (tmp / "config.json").write_text(json.dumps({**meta, **asdict(config)}, indent=1))
             if log is not None:
@@ -48,9 +85,11 @@ def save_checkpoint(model: nn.Module, config, out: str | Path, log: dict | None 
 
 
 def weights_id(folder: str | Path) -> str:
-    """A short digest of the weights in `folder` (its .safetensors files): equal ids, the same trained model."""
+    """A short digest of the model in `folder`, its weights (the .safetensors files) and its configuration
+    (config.json): equal ids, the same trained model run the same way."""
     digest = hashlib.sha256()
-    for path in sorted(Path(folder).glob("*.safetensors")):
+    folder = Path(folder)
+    for path in [*sorted(folder.glob("*.safetensors")), *[p for p in [folder / "config.json"] if p.is_file()]]:
         with open(path, "rb") as f:
             digest.update(hashlib.file_digest(f, "sha256").digest())
     return digest.hexdigest()[:16]
@@ -112,12 +151,28 @@ def load_checkpoint(path: str | Path, config_cls: type[C], build: Callable[[C], 
     weights = Path(path) / "model.safetensors"
     try:
         tensors = load_file(str(weights))
+        trained_as = _trained_config(weights)
         model.load_state_dict(tensors)
     except Exception as e:  # a truncated or foreign file: safetensors, or torch on missing and unexpected keys
         raise CheckpointError(f"{weights} does not hold the weights of this {what} "
                               f"({str(e).splitlines()[0][:200]}); train it again with `{train_hint}`") from None
+    said = json.loads(json.dumps(asdict(config)))
+    differ = [k for k in said if trained_as is not None and k in trained_as and trained_as[k] != said[k]]
+    if differ:
+        shown = ", ".join(f"{k} {said[k]!r} (trained with {trained_as[k]!r})" for k in differ)
+        raise CheckpointError(f"{Path(path) / 'config.json'} says {shown}: it no longer describes the weights beside "
+                              f"it; restore it, or train the {what} again with `{train_hint}`")
     check_finite(weights, tensors, f"train it again with `{train_hint}`")
     return model.eval()
+
+
+def _trained_config(weights: Path) -> dict | None:
+    """The config the weights were saved with, from their own metadata (None for a file written without it)."""
+    from safetensors import safe_open
+
+    with safe_open(str(weights), "pt") as f:
+        stored = (f.metadata() or {}).get("config")
+    return json.loads(stored) if stored is not None else None
 
 
 def check_finite(path: Path, tensors: dict, fix: str) -> None:

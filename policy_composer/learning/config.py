@@ -3,8 +3,10 @@ and choices from the config classes (as LeRobot's commands parse theirs) instead
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass, field, fields
-from typing import Any
+from pathlib import Path
+from typing import Any, NoReturn
 
 # The image encoders `learning.layers.image_encoder` builds.
 BACKBONES = ("spatial", "small", "resnet18")
@@ -25,6 +27,16 @@ def check_options(config: Any) -> None:
         if minimum is not None and value is not None and value < minimum:
             raise ValueError(f"{type(config).__name__}.{f.name} must be at least {minimum}, not {value!r}")
 
+
+
+def refuse(message: str) -> NoReturn:
+    """A config value that cannot work, in a config LeRobot's commands parse (the plugins'): under `lerobot-train` or
+    `lerobot-eval`, whose parser shows any error as a long traceback of its own frames, one line and exit code 2,
+    as argparse says it; elsewhere a ValueError."""
+    if Path(sys.argv[0]).name.startswith("lerobot-"):
+        print(f"error: {message}", file=sys.stderr)
+        raise SystemExit(2)
+    raise ValueError(message)
 
 
 @dataclass

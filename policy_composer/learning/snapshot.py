@@ -17,7 +17,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from policy_composer.data.atomic import replacing_folder
+from policy_composer.data.atomic import replacing_folder, safetensors_errors
 
 
 @dataclass
@@ -47,7 +47,7 @@ class Snapshots:
 
         opt = optimizer.state_dict()
         moments = {f"{i}.{k}": v.contiguous() for i, state in opt["state"].items() for k, v in state.items()}
-        with replacing_folder(self.folder) as tmp:
+        with replacing_folder(self.folder) as tmp, safetensors_errors(self.folder):
             save_file({k: v.contiguous() for k, v in model.state_dict().items()}, str(tmp / "model.safetensors"))
             save_file(moments, str(tmp / "optimizer.safetensors"))
             save_file({"generator": generator.get_state(), "torch": torch.get_rng_state()},

@@ -11,6 +11,7 @@ first process writes files.
 from __future__ import annotations
 
 import functools
+import math
 import os
 from collections.abc import Callable
 
@@ -18,6 +19,10 @@ import torch
 from torch import nn
 
 from policy_composer.learning.snapshot import Snapshots
+
+
+class TrainingDiverged(ValueError):
+    """A loss that is not finite: every weight after it would be noise, so the training stops and saves nothing."""
 
 
 def data_parallel():
@@ -106,13 +111,19 @@ def fit_epochs(model: nn.Module, optimizer: torch.optim.Optimizer, n: int, batch
         order = torch.randperm(n, generator=generator)
         if world > 1:  # the first process's order: the others' generators part ways in their own augmentations
             torch.distributed.broadcast(order, 0)
-        for idx in order.split(batch_size):
+        for batch, idx in enumerate(order.split(batch_size)):
             mine = idx[rank::world]
             optimizer.zero_grad()
             if len(mine):
                 loss = loss_fn(mine)
+                value = loss.item()
+                if not math.isfinite(value):
+                    raise TrainingDiverged(
+                        f"{desc}: the loss is {value} at epoch {epoch + 1}, batch {batch + 1} (rows "
+                        f"{mine[:3].tolist()}...); nothing was saved. The datasets' numbers are finite (every reader "
+                        "checks them), so the training diverged: train again with another --seed")
                 (loss * (len(mine) / len(idx))).backward()
-                total += loss.item() * len(mine)
+                total += value * len(mine)
             if world > 1:
                 _sum_gradients(params)
             optimizer.step()

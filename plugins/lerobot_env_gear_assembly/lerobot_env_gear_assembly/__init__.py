@@ -30,6 +30,13 @@ class GearAssemblyEnv(EnvConfig):
     episode_length: int | None = None  # control steps before an episode is cut off (None: the task's, 200 or 400)
 
     def __post_init__(self):
+        from policy_composer.learning.config import refuse
+        from policy_composer.tasks.lerobot_env import check_settings
+
+        try:  # here, before lerobot-eval loads the policy, rather than when it builds the env
+            check_settings(self.task, self.resolution, self.cameras, self.clearance_mm, self.episode_length)
+        except ValueError as e:
+            refuse(str(e))
         self.features = {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(len(ACTION_NAMES),)),
                          "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(len(STATE_NAMES),))}
         self.features_map = {ACTION: ACTION, "agent_pos": OBS_STATE}

@@ -9,7 +9,7 @@ from lerobot.optim.optimizers import AdamConfig
 from lerobot.optim.schedulers import CosineAnnealingWithWarmupSchedulerConfig
 from lerobot.utils.constants import OBS_IMAGES
 
-from policy_composer.learning.config import BACKBONES
+from policy_composer.learning.config import BACKBONES, refuse
 
 
 @PreTrainedConfig.register_subclass("cnn_mdn")
@@ -55,13 +55,13 @@ class CNNMDNConfig(PreTrainedConfig):
     def __post_init__(self):
         super().__post_init__()
         if self.backbone not in BACKBONES:
-            raise ValueError(f"--policy.backbone={self.backbone!r} is not one of {', '.join(BACKBONES)}")
+            refuse(f"--policy.backbone={self.backbone!r} is not one of {', '.join(BACKBONES)}")
         if self.n_obs_steps != 1:
-            raise ValueError(f"cnn_mdn sees one observation step, not {self.n_obs_steps}: use --policy.n_obs_steps=1")
+            refuse(f"cnn_mdn sees one observation step, not {self.n_obs_steps}: use --policy.n_obs_steps=1")
         if self.window is not None and (len(self.window) != 3 or not all(0 <= w <= 1 for w in self.window)):
-            raise ValueError(f"--policy.window={self.window} must be [top, left, side], fractions of the image")
+            refuse(f"--policy.window={self.window} must be [top, left, side], fractions of the image")
         if self.image_size < 16:
-            raise ValueError(f"--policy.image_size={self.image_size} is too small for the encoder: use 16 or more")
+            refuse(f"--policy.image_size={self.image_size} is too small for the encoder: use 16 or more")
 
     def get_optimizer_preset(self) -> AdamConfig:
         """Adam without gradient clipping, as the project's loop trains it."""
@@ -75,17 +75,17 @@ class CNNMDNConfig(PreTrainedConfig):
     def validate_features(self) -> None:
         cameras = [k.removeprefix(f"{OBS_IMAGES}.") for k in self.image_features]
         if not cameras or self.robot_state_feature is None:
-            raise ValueError("cnn_mdn needs a dataset with at least one camera (observation.images.*) and a state "
+            refuse("cnn_mdn needs a dataset with at least one camera (observation.images.*) and a state "
                              f"(observation.state); this one has cameras {cameras} and "
                              f"{'a' if self.robot_state_feature else 'no'} state")
         size = self.robot_state_feature.shape[0]
         if self.state_indices is not None and not all(0 <= i < size for i in self.state_indices):
-            raise ValueError(f"--policy.state_indices={self.state_indices} must be entries of the state, 0 to "
+            refuse(f"--policy.state_indices={self.state_indices} must be entries of the state, 0 to "
                              f"{size - 1}")
         if self.camera is None:
             self.camera = cameras[0]
         elif self.camera not in cameras:
-            raise ValueError(f"--policy.camera={self.camera} is not a camera of the dataset: choose one of "
+            refuse(f"--policy.camera={self.camera} is not a camera of the dataset: choose one of "
                              f"{', '.join(cameras)}")
         # The cameras it does not read are not its inputs: a controller or an env need not render them.
         self.input_features = {k: v for k, v in self.input_features.items()

@@ -10,6 +10,7 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_policy_cnn_mdn.configuration_cnn_mdn import CNNMDNConfig
 from policy_composer.data.frames import random_shift, to_model_image
+from policy_composer.learning.config import refuse
 from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
 
 
@@ -31,17 +32,17 @@ class CNNMDNPolicy(PreTrainedPolicy):
         config.validate_features()
         if config.binary_actions is None:
             if dataset_stats is None or ACTION not in dataset_stats:
-                raise ValueError("cnn_mdn finds its binary action entries in the dataset's statistics, and has none "
+                refuse("cnn_mdn finds its binary action entries in the dataset's statistics, and has none "
                                  "here: set them with --policy.binary_actions='[7]' (or '[]')")
             config.binary_actions = two_valued(dataset_stats[ACTION])
         if config.auxiliary_feature and dataset_stats is not None and config.auxiliary_feature not in dataset_stats:
-            raise ValueError(f"--policy.auxiliary_feature={config.auxiliary_feature} is not a feature of the "
+            refuse(f"--policy.auxiliary_feature={config.auxiliary_feature} is not a feature of the "
                                  f"dataset (it has {', '.join(dataset_stats)})")
         self.model = CNNPolicy(config)
         if config.auxiliary_feature and dataset_stats is not None:  # the auxiliary target is not LeRobot-normalised
             stats = dataset_stats[config.auxiliary_feature]
             if np.asarray(stats["mean"]).size != 3:
-                raise ValueError(f"--policy.auxiliary_feature={config.auxiliary_feature} has "
+                refuse(f"--policy.auxiliary_feature={config.auxiliary_feature} has "
                                  f"{np.asarray(stats['mean']).size} values; the auxiliary head regresses 3 (an "
                                  "offset such as gear_offset)")
             self.model.offset_mean.copy_(torch.as_tensor(np.asarray(stats["mean"]), dtype=torch.float32))
@@ -66,7 +67,7 @@ class CNNMDNPolicy(PreTrainedPolicy):
         offset = None
         if self.config.auxiliary_feature:
             if self.config.auxiliary_feature not in batch:
-                raise ValueError(f"the batch has no {self.config.auxiliary_feature} (--policy.auxiliary_feature): "
+                refuse(f"the batch has no {self.config.auxiliary_feature} (--policy.auxiliary_feature): "
                                  "only the preprocessor of make_cnn_mdn_pre_post_processors passes it through, not "
                                  "one loaded from a checkpoint (--resume); train afresh, or without it "
                                  "(--policy.auxiliary_feature=null)")

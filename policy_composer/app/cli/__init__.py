@@ -27,11 +27,13 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     from policy_composer.app.composition import RunError
     from policy_composer.app.workers import ClusterError
+    from policy_composer.data.atomic import FolderTaken
     from policy_composer.data.features import DatasetError
     from policy_composer.data.interrupt import flag_interrupts
     from policy_composer.data.lock import FolderBusy
     from policy_composer.data.recipes import RecipeError
     from policy_composer.learning.checkpoint import CheckpointError
+    from policy_composer.learning.training import TrainingDiverged
 
     args = build_parser().parse_args(argv)
     if not getattr(args, "online", False):  # everything but an upload works offline
@@ -39,8 +41,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with flag_interrupts():  # a Ctrl-C swallowed by a library is raised again at the next episode or stage
             return args.func(args)
-    except (DatasetError, RecipeError, CheckpointError, LibraryError, RunError, FolderBusy, FileNotFoundError,
-            ClusterError) as e:
+    except (DatasetError, RecipeError, CheckpointError, LibraryError, RunError, FolderBusy, FolderTaken,
+            FileNotFoundError, ClusterError, TrainingDiverged) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     except OSError as e:  # the disk, not the program: one line, and the fix

@@ -43,7 +43,30 @@ def lerobot_source(spec: str) -> LeRobotSource:
     if not (Path(path) / "config.json").is_file():
         raise LibraryError(f"--lerobot {spec!r}: no LeRobot policy checkpoint at {path} (expected the "
                            f"`pretrained_model` folder that lerobot-train saves, with its config.json)")
+    check_readable(Path(path))
     return LeRobotSource(path, subtask, name)
+
+
+def check_readable(path: Path) -> None:
+    """A LeRobot checkpoint's config and weights files read (a damaged one is named before any work starts; loading
+    the policy, later and in each worker, says more)."""
+    import json
+
+    from safetensors import safe_open
+
+    fix = "train the policy again with lerobot-train, or restore the checkpoint from a copy"
+    try:
+        config = json.loads((path / "config.json").read_text())
+        if not isinstance(config, dict) or "type" not in config:
+            raise ValueError("no policy type in it")
+    except (ValueError, UnicodeDecodeError) as e:
+        raise LibraryError(f"{path / 'config.json'} is not a LeRobot policy config ({e}); {fix}") from None
+    weights = path / "model.safetensors"
+    try:
+        with safe_open(str(weights), "pt") as f:
+            f.keys()
+    except Exception as e:  # safetensors' own error: a truncated or foreign file
+        raise LibraryError(f"{weights} is not a readable safetensors file ({str(e)[:200]}); {fix}") from None
 
 
 def insertion(value: str) -> str:
@@ -94,10 +117,21 @@ def workers_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=at_least(1), default=None,
                    help="processes running episodes side by side, each with its own env (default: the usable "
                         "cores, or the Ray cluster's); the results are the same for any number")
-    p.add_argument("--ray", metavar="ADDRESS", default=None,
+    p.add_argument("--ray", metavar="ADDRESS", default=None, type=ray_address,
                    help="run the episodes on the Ray cluster at ADDRESS ('auto': the one this machine belongs to; "
                         "'local': a new one here); every node needs the project installed at the same path. The "
                         "results are the same as on this machine")
+
+
+def ray_address(text: str) -> str:
+    """--ray's value, its form checked before any work (whether a cluster answers there, when it is used)."""
+    from policy_composer.app.workers import RAY_FORMS, ClusterError, ray_endpoint
+
+    try:
+        ray_endpoint(text)
+    except ClusterError:
+        raise argparse.ArgumentTypeError(f"must be {RAY_FORMS}, not {text!r}") from None
+    return text
 
 
 def episode_workers(args: argparse.Namespace) -> int:

@@ -32,13 +32,17 @@ def cmd_train_policy(args: argparse.Namespace) -> int:
 
 def cmd_train_dmp(args: argparse.Namespace) -> int:
     """Fit the DMP library to the motion planner's trajectories."""
-    from policy_composer.policies.dmp.controller import fit_dmp_library
+    from policy_composer.data.atomic import check_replaceable
+    from policy_composer.learning.checkpoint import model_writer
+    from policy_composer.policies.dmp.controller import DMP_FILES, fit_dmp_library
 
-    env = make_env("state_dict", args)
-    t0 = time.time()
-    library = fit_dmp_library(env, seeds=list(range(args.seed, args.seed + args.episodes)))
-    library.save(args.out)
-    env.close()
+    with model_writer(args.out):
+        check_replaceable(args.out, DMP_FILES, "a DMP library")
+        env = make_env("state_dict", args)
+        t0 = time.time()
+        library = fit_dmp_library(env, seeds=list(range(args.seed, args.seed + args.episodes)))
+        library.save(args.out)
+        env.close()
     print(f"fitted DMPs to {args.episodes} planner episodes in {time.time() - t0:.0f} s -> {args.out}")
     return 0
 
