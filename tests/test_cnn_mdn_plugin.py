@@ -121,10 +121,10 @@ def test_a_dataset_without_a_camera_is_refused_with_the_reason():
 
 
 def test_lerobot_train_names_a_bad_policy_setting_in_one_line(insertion_demos, tmp_path):
-    res = lerobot("lerobot-train", f"--dataset.repo_id=local/{insertion_demos.name}", f"--dataset.root={insertion_demos}",
-                  "--policy.type=cnn_mdn", "--policy.push_to_hub=false", "--policy.device=cpu",
-                  "--policy.state_indices=[99]", "--steps=1", "--batch_size=2", "--num_workers=0",
-                  f"--output_dir={tmp_path / 'run'}", "--wandb.enable=false", timeout=300)
+    res = lerobot("lerobot-train", f"--dataset.repo_id=local/{insertion_demos.name}",
+                  f"--dataset.root={insertion_demos}", "--policy.type=cnn_mdn", "--policy.push_to_hub=false",
+                  "--policy.device=cpu", "--policy.state_indices=[99]", "--steps=1", "--batch_size=2",
+                  "--num_workers=0", f"--output_dir={tmp_path / 'run'}", "--wandb.enable=false", timeout=300)
     assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr[-3000:]
     assert res.stderr.strip().splitlines()[-1] == "error: --policy.state_indices=[99] must be entries of the state, " \
                                                    "0 to 15"

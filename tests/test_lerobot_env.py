@@ -121,7 +121,8 @@ def test_lerobots_viewer_opens_our_dataset(insertion_demos, tmp_path):
 
 @pytest.mark.parametrize("flag, message", [
     ("--env.resolution=0", "--env.resolution must be between 16 and 512 pixels, not 0"),
-    ("--env.cameras=[wrist]", "GearAssembly's cameras are head, left_forearm, right_forearm, not ['wrist'] (--env.cameras)"),
+    ("--env.cameras=[wrist]",
+     "GearAssembly's cameras are head, left_forearm, right_forearm, not ['wrist'] (--env.cameras)"),
     ("--env.task=stack", "GearAssembly has no task 'stack': choose one of insert, full (--env.task)"),
 ])
 def test_lerobot_eval_names_a_bad_env_setting_in_one_line(tmp_path, flag, message):
