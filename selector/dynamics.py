@@ -122,6 +122,16 @@ def transition_pairs(episode_index: torch.Tensor, frame_skip: int) -> tuple[torc
     return torch.cat(src), torch.cat(dst)
 
 
+@torch.no_grad()
+def prediction_error(model: LatentDynamics, latents: torch.Tensor, episode_index: torch.Tensor) -> dict[str, float]:
+    """The model's mean squared error over recorded transitions `frame_skip` steps apart (latents (N, L) of one
+    controller's frames), beside that of predicting no change: a model that learnt nothing scores as "unchanged"."""
+    src, dst = transition_pairs(episode_index, model.config.frame_skip)
+    target = latents[dst]
+    return {"model": float(((model.expected(latents[src]) - target) ** 2).mean()),
+            "unchanged": float(((latents[src] - target) ** 2).mean())}
+
+
 def train_dynamics(latents: torch.Tensor, images: torch.Tensor, episode_index: torch.Tensor, config: DynamicsConfig,
                    vae: VAE, out: str | Path | None = None, progress: bool = True,
                    trained_with: dict[str, str] | None = None) -> tuple[LatentDynamics, list[float]]:

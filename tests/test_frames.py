@@ -11,6 +11,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pytest
+import torch
 from conftest import run_cli, tree_digest
 
 from policy_composer.app.pipeline import MARKER, Stage, run_stages
@@ -36,22 +37,60 @@ def read_stamp(image: np.ndarray) -> int:
     return sum(1 << bit for bit in range(RES // BLOCK) if image[c, bit * BLOCK + c].mean() > 127)
 
 
+class Stamped(gym.Wrapper):
+    """Stamps every observation's camera images with the observation's number before anything above it sees them,
+    and keeps the state observed with each number: a frame whose image and state come from different steps shows
+    it."""
+
+    def __init__(self, env: gym.Env):
+        super().__init__(env)
+        self.states: list[np.ndarray] = []
+
+    def _stamped(self, obs):
+        for sensor in obs["sensor_data"].values():
+            image = sensor["rgb"][0].cpu().numpy().copy()
+            stamp(image, len(self.states))
+            sensor["rgb"][0] = torch.as_tensor(image)
+        self.states.append(obs["extra"]["state"][0].cpu().numpy().copy())
+        return obs
+
+    def reset(self, **kwargs):
+        self.states = []
+        obs, info = self.env.reset(**kwargs)
+        return self._stamped(obs), info
+
+    def step(self, action):
+        obs, *rest = self.env.step(action)
+        return self._stamped(obs), *rest
+
+
 @pytest.fixture(scope="module")
 def episode():
-    """One expert episode's buffered frames (three cameras), each camera's image stamped with its frame index."""
-    env = FrameBuffer(gym.make("GearAssembly-v1", obs_mode="rgb", camera_width=RES, camera_height=RES))
-    expert = GearAssemblyExpert(env)
-    obs, _ = env.reset(seed=3)
+    """One expert episode's buffered frames (three cameras), each image stamped with its step's number below the
+    buffer, and the state observed with each number."""
+    env = Stamped(gym.make("GearAssembly-v1", obs_mode="rgb", camera_width=RES, camera_height=RES))
+    buffer = FrameBuffer(env)
+    expert = GearAssemblyExpert(buffer)
+    obs, _ = buffer.reset(seed=3)
     expert.reset(3)
-    env.controller = "expert"
+    buffer.controller = "expert"
+    actions = []
     for _ in range(STEPS):
-        obs, *_ = env.step(expert.act(obs))
-    frames = env.take_episode()
-    env.close()
+        actions.append(expert.act(obs))
+        obs, *_ = buffer.step(actions[-1])
+    frames = buffer.take_episode()
+    buffer.close()
+    return frames, env.states, [a.numpy().astype(np.float32).ravel() for a in actions]
+
+
+def test_a_buffered_frame_holds_the_image_state_and_action_of_one_step(episode):
+    """Frame t: the images and the state observed before step t, and the action of step t."""
+    frames, states, actions = episode
+    assert len(frames) == STEPS and len(states) == STEPS + 1  # the observation after the last step is no frame
     for t, frame in enumerate(frames):
-        for camera in CAMERA_NAMES:
-            stamp(frame[image_key(camera)], t)
-    return frames
+        assert [read_stamp(frame[image_key(c)]) for c in CAMERA_NAMES] == [t] * len(CAMERA_NAMES), t
+        np.testing.assert_array_equal(frame["observation.state"], states[t])
+        np.testing.assert_array_equal(frame["action"], actions[t])
 
 
 def slow_encoder(monkeypatch, seconds: float = 0.15) -> None:
@@ -73,7 +112,8 @@ def writer(root: Path, queue_size: int = 1, resume: bool = False) -> LeRobotWrit
 def test_a_slow_encoder_loses_no_frame_and_image_i_is_state_i(tmp_path, monkeypatch, episode):
     slow_encoder(monkeypatch)
     root = tmp_path / "slow"
-    writer(root).save_episode(episode, success=False, seed=3)
+    frames, _, _ = episode
+    writer(root).save_episode(frames, success=False, seed=3)
 
     info = read_info(root)
     for camera in CAMERA_NAMES:
@@ -83,8 +123,8 @@ def test_a_slow_encoder_loses_no_frame_and_image_i_is_state_i(tmp_path, monkeypa
     assert ds.num_frames == STEPS
     for i in range(STEPS):
         item = ds[i]
-        np.testing.assert_array_equal(item["observation.state"].numpy(), episode[i]["observation.state"])
-        np.testing.assert_array_equal(item["action"].numpy(), episode[i]["action"])
+        np.testing.assert_array_equal(item["observation.state"].numpy(), frames[i]["observation.state"])
+        np.testing.assert_array_equal(item["action"].numpy(), frames[i]["action"])
         for camera in CAMERA_NAMES:
             decoded = (item[image_key(camera)].permute(1, 2, 0).numpy() * 255).round()
             assert read_stamp(decoded) == i, f"{camera}: image {i} shows frame {read_stamp(decoded)}"
@@ -96,12 +136,13 @@ def test_a_lossy_encoder_is_caught_before_the_episode_is_committed(tmp_path, mon
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     root = tmp_path / "lossy"
-    writer(root, queue_size=30).save_episode(episode, success=False, seed=3)
+    frames, _, _ = episode
+    writer(root, queue_size=30).save_episode(frames, success=False, seed=3)
     before = tree_digest(root)
     slow_encoder(monkeypatch)
     monkeypatch.setattr(recorder, "_lossless_dataset_class", lambda: LeRobotDataset)
     with pytest.raises(DatasetError, match=r"episode 1 was not saved.*camera head: .* \d+ frames for 30 steps"):
-        writer(root, resume=True).save_episode(episode, success=False, seed=4)
+        writer(root, resume=True).save_episode(frames, success=False, seed=4)
     assert tree_digest(root) == before
     assert open_dataset(root).num_episodes == 1
 

@@ -355,6 +355,40 @@ def test_lerobot_policy_runs_as_a_controller(policy, rgb_env, request):
         LeRobotPolicyController(rgb_env, checkpoint.parent)
 
 
+@pytest.mark.parametrize("policy", ["act", "diffusion", "cnn_mdn"])
+def test_a_lerobot_controller_commands_what_the_policy_selects(policy, rgb_env, request):
+    """The controller's command is LeRobot's own pipeline on the same observation, loaded afresh: the checkpoint's
+    preprocessor, `select_action`, its postprocessor, and the left arm's entries of the 16-D action (0-6, gripper 7).
+    A dropped postprocessor or another slice of the action would differ: the test checks that they do."""
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+
+    checkpoint, _ = request.getfixturevalue(f"{policy}_checkpoint")
+    controller = LeRobotPolicyController(rgb_env, checkpoint, max_steps=3)
+    obs = start_state(rgb_env, 3, "insert")
+    controller.start(obs)
+    torch.manual_seed(0)
+    joints, gripper = controller.predict(obs)
+
+    config = PreTrainedConfig.from_pretrained(checkpoint)
+    config.device = "cpu"
+    reference = get_policy_class(config.type).from_pretrained(checkpoint, config=config).eval()
+    pre, post = make_pre_post_processors(config, pretrained_path=str(checkpoint),
+                                         preprocessor_overrides={"device_processor": {"device": "cpu"}})
+    batch = {"observation.state": obs["extra"]["state"][:1].float(), "task": [controller.task]}
+    for key in config.image_features:  # the env renders at the size the policy was trained on: no resizing
+        camera = key.removeprefix("observation.images.")
+        batch[key] = obs["sensor_data"][camera]["rgb"][:1].permute(0, 3, 1, 2).float() / 255.0
+    torch.manual_seed(0)
+    with torch.no_grad():
+        raw = reference.select_action(pre(batch))
+    action = post(raw)[0].double().numpy()
+    np.testing.assert_allclose(joints, action[:7], rtol=1e-5, atol=1e-6)
+    assert gripper == pytest.approx(float(np.clip(action[7], -1.0, 1.0)), abs=1e-6)
+    assert not np.allclose(action[:7], raw[0, :7].double().numpy(), atol=1e-3), "the postprocessor changes nothing"
+    assert not np.allclose(action[:7], action[8:15], atol=1e-3), "the arms' entries cannot be told apart"
+
+
 def test_the_controller_table_runs_only_the_columns_asked_for(insertion_demos, tmp_path):
     """Every column of every kind runs in the main job's test; here one column asked for is one column run, and only
     its controllers are built: a CNN model with an insertion policy alone serves the insert column."""

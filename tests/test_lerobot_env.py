@@ -48,6 +48,22 @@ def test_observations_and_success_in_lerobots_conventions(insert_env):
     assert terminated and not truncated and info == {"is_success": True}, (insert_env._steps, info)
 
 
+def test_the_full_task_starts_from_the_table_and_is_cut_off_unfinished():
+    """`--env.task=full`: the gear on the table, not in the hand; an episode that does not seat it ends truncated at
+    its step limit, not a success."""
+    env = GearAssemblyLeRobotEnv("full", resolution=32, cameras=("head",), max_episode_steps=5)
+    try:
+        obs, info = env.reset(seed=3)
+        flags = env.env.unwrapped.evaluate()
+        assert int(flags["stage"][0]) == 0 and not bool(flags["gear_grasped"][0]) and info == {"is_success": False}
+        assert env.task_description == TASKS["full"][2] and sorted(obs["pixels"]) == ["head"]
+        ends = [env.step(obs["agent_pos"])[2:] for _ in range(5)]  # the joints held where they are
+        assert [(terminated, truncated) for terminated, truncated, _ in ends] == [(False, False)] * 4 + [(False, True)]
+        assert ends[-1][2] == {"is_success": False}
+    finally:
+        env.close()
+
+
 def test_bad_task_or_camera_is_named():
     with pytest.raises(ValueError, match="no task 'stack': choose one of insert, full"):
         GearAssemblyLeRobotEnv("stack")

@@ -183,20 +183,37 @@ def test_a_read_only_out_is_refused_before_the_training(insertion_demos, tmp_pat
     from policy_composer.policies.cnn import train
 
     monkeypatch.setattr(train, "load_demonstrations", lambda *a, **k: pytest.fail("the training began"))
-    with small_disk(tmp_path / "ro", "1m", read_only=True) as disk:
+    with small_disk(tmp_path / "ro", "1m", read_only=True, fallback="test_a_read_only_folder_is_one_line") as disk:
         line = one_line_error(_train(insertion_demos, disk / "cnn"))
     assert "Read-only file system" in line
 
 
+def _train_onto_a_full_disk(insertion_demos: Path, out: Path) -> None:
+    before = tree_digest(out)
+    line = one_line_error(_train(insertion_demos, out))
+    assert "No space left on device" in line and str(out) in line
+    assert tree_digest(out) == before  # the model trained before it
+
+
 def test_a_full_disk_at_the_save_is_one_line_and_the_old_model_stays(insertion_demos, tmp_path):
-    with small_disk(tmp_path / "disk", "2m") as disk:
+    with small_disk(tmp_path / "disk", "2m", fallback="test_a_save_that_runs_out_of_room_is_one_line") as disk:
         out = _cnn_checkpoint(disk / "cnn")
-        before = tree_digest(out)
         with open(disk / "filler", "wb") as f:
             f.write(b"\0" * (2 * 2**20 - 3 * (out / "model.safetensors").stat().st_size // 2))
-        line = one_line_error(_train(insertion_demos, out))
-        assert "No space left on device" in line and str(out) in line
-        assert tree_digest(out) == before
+        _train_onto_a_full_disk(insertion_demos, out)
+
+
+def test_a_save_that_runs_out_of_room_is_one_line(insertion_demos, tmp_path, monkeypatch):
+    """The full disk's path without a small disk: safetensors fails as it does on one (its own error, the OS's code
+    in its text)."""
+    import safetensors.torch
+
+    def full(*args, **kwargs):
+        raise safetensors.SafetensorError("Error while serializing: I/O error: No space left on device (os error 28)")
+
+    out = _cnn_checkpoint(tmp_path / "cnn")
+    monkeypatch.setattr(safetensors.torch, "save_file", full)
+    _train_onto_a_full_disk(insertion_demos, out)
 
 
 def test_a_damaged_lerobot_checkpoint_is_named(cnn_mdn_checkpoint, tmp_path):

@@ -104,20 +104,28 @@ def test_a_bad_recipe_file_is_refused_before_anything_is_written(tmp_path, text,
 
 
 @contextlib.contextmanager
-def small_disk(path: Path, size: str, read_only: bool = False):
-    """A tmpfs of `size` at `path` (root only: skipped where mounting is not allowed)."""
+def small_disk(path: Path, size: str, read_only: bool = False, *, fallback: str):
+    """A tmpfs of `size` at `path`. Where mounting is refused (no root, or a container without CAP_SYS_ADMIN) the
+    test skips, naming the test that takes the same path with the OS error raised where the disk would raise it."""
     path.mkdir(parents=True)
     options = f"size={size}" + (",ro" if read_only else "")
     if subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(path)], capture_output=True).returncode:
-        pytest.skip("mounting a small file system needs root")
+        pytest.skip(f"mounting a {size} tmpfs is refused here; {fallback} takes the same path on any machine")
     try:
         yield path
     finally:
         subprocess.run(["umount", "-l", str(path)], check=True)
 
 
+def disk_error(code: int, path: Path):
+    """What a write on a full or read-only disk raises."""
+    def raising(*args, **kwargs):
+        raise OSError(code, os.strerror(code), str(path))
+    return raising
+
+
 def test_a_full_disk_mid_episode_leaves_the_dataset_as_it_was(tmp_path):
-    with small_disk(tmp_path / "disk", "64m") as disk:
+    with small_disk(tmp_path / "disk", "64m", fallback="test_a_save_failing_mid_episode_rolls_back") as disk:
         root = disk / "demos"
         res = run_cli("record", "gear-insertion-demos", "--episodes", "1", "--resolution", "32", "--root", str(root))
         assert res.returncode == 0, res.stderr[-2000:]
@@ -137,11 +145,34 @@ def test_a_full_disk_mid_episode_leaves_the_dataset_as_it_was(tmp_path):
         assert run_cli("dataset", "info", str(root)).returncode == 0
 
 
+def test_a_save_failing_mid_episode_rolls_back(insertion_demos, tmp_path, monkeypatch):
+    """The full disk's path without a small disk: the episode's files written, then the save fails with ENOSPC."""
+    from policy_composer.data import recorder
+
+    root = Path(shutil.copytree(insertion_demos, tmp_path / "demos"))
+    before = tree_digest(root)
+    monkeypatch.setattr(recorder, "data_digests", disk_error(errno.ENOSPC, root / "data"))
+    line = one_line_error(run_cli("record", "gear-insertion-demos", "--episodes", "3", "--resume", "--root",
+                                  str(root)))
+    assert "episode 2 was not saved" in line and "No space left on device" in line, line
+    assert tree_digest(root) == before and read_info(root)["total_episodes"] == 2
+
+
 def test_a_read_only_disk_is_one_line(tmp_path):
-    with small_disk(tmp_path / "ro", "1m", read_only=True) as disk:
+    with small_disk(tmp_path / "ro", "1m", read_only=True, fallback="test_a_read_only_folder_is_one_line") as disk:
         line = one_line_error(run_cli("record", "gear-insertion-demos", "--episodes", "1", "--root",
                                   str(disk / "demos")))
         assert "Read-only file system" in line and str(disk) in line
+
+
+def test_a_read_only_folder_is_one_line(tmp_path, monkeypatch):
+    """The read-only disk's path without one: the first write (the writer's lock) fails with EROFS."""
+    from policy_composer.data import lock
+
+    monkeypatch.setattr(lock.os, "open", disk_error(errno.EROFS, tmp_path / ".demos.lock"))
+    line = one_line_error(run_cli("record", "gear-insertion-demos", "--episodes", "1", "--root",
+                                  str(tmp_path / "demos")))
+    assert "Read-only file system" in line and str(tmp_path) in line
 
 
 def test_a_damaged_data_file_is_named_by_dataset_info(insertion_demos, tmp_path):
