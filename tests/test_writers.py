@@ -109,7 +109,9 @@ def small_disk(path: Path, size: str, read_only: bool = False, *, fallback: str)
     test skips, naming the test that takes the same path with the OS error raised where the disk would raise it."""
     path.mkdir(parents=True)
     options = f"size={size}" + (",ro" if read_only else "")
-    if subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(path)], capture_output=True).returncode:
+    mount = shutil.which("mount")
+    if not mount or subprocess.run([mount, "-t", "tmpfs", "-o", options, "tmpfs", str(path)],
+                                   capture_output=True).returncode:
         pytest.skip(f"mounting a {size} tmpfs is refused here; {fallback} takes the same path on any machine")
     try:
         yield path
