@@ -89,11 +89,11 @@ class LeRobotPolicyController(LearnedController):
                 self.images[key] = (camera, int(feature.shape[-1]))
             elif key == "observation.state" and tuple(feature.shape) != (len(STATE_NAMES),):
                 raise CheckpointError(f"the policy at {path} takes a state of shape {tuple(feature.shape)}, "
-                                 f"GearAssembly-v1 gives ({len(STATE_NAMES)},)")
+                                      f"GearAssembly-v1 gives ({len(STATE_NAMES)},)")
         if tuple(cfg.output_features["action"].shape) != (len(ACTION_NAMES),):
             raise CheckpointError(f"the policy at {path} outputs actions of shape "
-                             f"{tuple(cfg.output_features['action'].shape)}, "
-                             f"GearAssembly-v1 takes ({len(ACTION_NAMES)},)")
+                                  f"{tuple(cfg.output_features['action'].shape)}, "
+                                  f"GearAssembly-v1 takes ({len(ACTION_NAMES)},)")
         with damaged_files(path / "model.safetensors", "does not hold the weights of this policy"):
             self.policy = get_policy_class(cfg.type).from_pretrained(path, config=cfg).eval()
         check_finite(path / "model.safetensors", self.policy.state_dict(), "train it again with lerobot-train")
