@@ -157,7 +157,10 @@ def load_recipe(name_or_path: str | Path) -> Recipe:
     if not isinstance(expert, dict):
         raise RecipeError(f"recipe {path}: expert must be a table ([expert]), not {expert!r}")
     raw = typed_fields(Recipe, raw, f"recipe {path}", skip=("expert",))
-    raw["expert"] = ExpertSettings(**typed_fields(ExpertSettings, expert, f"recipe {path}, [expert]"))
+    try:
+        raw["expert"] = ExpertSettings(**typed_fields(ExpertSettings, expert, f"recipe {path}, [expert]"))
+    except RecipeError as e:
+        raise RecipeError(str(e) if str(e).startswith("recipe ") else f"recipe {path}, {e}") from None
     return Recipe(**raw)
 
 
