@@ -41,6 +41,9 @@ def test_expert_prints_success_and_writes_a_three_camera_video(tmp_path):
     (("record", "gear-insertion-demos", "--ray", "not-an-address"),
      "argument --ray: must be auto, local, HOST:PORT or ray://HOST:PORT, not 'not-an-address'"),
     (("compose", "--ray", ""), "argument --ray: must be auto, local, HOST:PORT or ray://HOST:PORT, not ''"),
+    (("train", "world-model", "--controllers", "mp_pick,mp_pick"),
+     "argument --controllers: must name each once, comma-separated, not 'mp_pick,mp_pick'"),
+    (("train", "goal-score", "--cameras", "head,head"), "argument --cameras: must name each once"),
     (("library", "add", "--lerobot", "ckpt:insert:act-1"), "the controller's name must be letters, digits and _"),
     (("library", "add", "--lerobot", "nowhere:insert:act_insert"), "no LeRobot policy checkpoint at nowhere"),
 ])

@@ -226,3 +226,11 @@ def test_a_damaged_lerobot_checkpoint_is_named(cnn_mdn_checkpoint, tmp_path):
     (ckpt / "config.json").write_text("[1, 2]")
     line = one_line_error(run_cli("compose", "--lerobot", f"{ckpt}:insert", cwd=tmp_path))
     assert f"{ckpt / 'config.json'} is not a LeRobot policy config" in line
+
+
+def test_one_checkpoint_given_twice_is_refused(cnn_mdn_checkpoint, tmp_path):
+    checkpoint, _ = cnn_mdn_checkpoint
+    line = one_line_error(run_cli("compose", "--lerobot", f"{checkpoint}:insert", "--lerobot",
+                                  f"{checkpoint}:insert", "--out", str(tmp_path / "run"), cwd=tmp_path))
+    assert "--lerobot names controllers lerobot_insert, lerobot_insert: each needs a name of its own" in line
+    assert not (tmp_path / "run").exists()

@@ -43,6 +43,16 @@ def subset_of(choices: tuple[str, ...]):
     return parse
 
 
+def names(text: str) -> tuple[str, ...]:
+    """An argparse type: comma-separated names, at least one, none given twice (a repeat would be trained or run
+    twice, or silently once)."""
+    picked = tuple(t.strip() for t in text.split(",") if t.strip())
+    repeated = sorted({t for t in picked if picked.count(t) > 1})
+    if not picked or repeated:
+        raise argparse.ArgumentTypeError(f"must name each once, comma-separated, not {text!r}")
+    return picked
+
+
 def _number(text: str, kind: type):
     try:
         return kind(text)

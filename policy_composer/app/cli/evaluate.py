@@ -6,7 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
-from policy_composer.app.arguments import at_least, subset_of
+from policy_composer.app.arguments import at_least, names, subset_of
 from policy_composer.app.cli.options import (
     WORLD,
     dataset_path,
@@ -62,7 +62,7 @@ def cmd_evaluate_goal_score(args: argparse.Namespace) -> int:
     """Each camera's goal score on the held-out full-task demos: curves and rank correlation."""
     from policy_composer.selector.evaluate import evaluate_goal_scores
 
-    metrics = evaluate_goal_scores(args.models, args.demos, args.out, tuple(args.cameras.split(",")))
+    metrics = evaluate_goal_scores(args.models, args.demos, args.out, args.cameras)
     for camera, m in metrics.items():
         print(f"{camera}: Spearman {m['spearman']:.3f}, mean abs. error {m['mae']:.3f} over {m['episodes']} episodes")
     print(f"figure: {Path(args.out) / 'goal_score.png'}")
@@ -95,6 +95,6 @@ def add_commands(sub) -> None:
     ev_goal = ev_sub.add_parser("goal-score", help="each camera's goal score on held-out full-task demos")
     ev_goal.add_argument("--models", default=WORLD)
     ev_goal.add_argument("--demos", default=dataset_path("gear-full-task-demos"))
-    ev_goal.add_argument("--cameras", default=",".join(CAMERA_NAMES))
+    ev_goal.add_argument("--cameras", type=names, default=",".join(CAMERA_NAMES))
     ev_goal.add_argument("--out", default="results/goal_score")
     ev_goal.set_defaults(func=cmd_evaluate_goal_score)

@@ -22,8 +22,13 @@ def dataset_path(recipe: str) -> str:
 
 def library_sources(args: argparse.Namespace) -> LibrarySources:
     """The library's model sources from the per-kind flags (`model_options`) and --lerobot."""
+    lerobot = tuple(lerobot_source(spec) for spec in getattr(args, "lerobot", ()))
+    named = [s.controller_name for s in lerobot]
+    if len(set(named)) < len(named):
+        raise LibraryError(f"--lerobot names controllers {', '.join(named)}: each needs a name of its own "
+                           "(PATH:SUBTASK:NAME)")
     return LibrarySources(models={k.name: getattr(args, k.name) for k in kinds().values() if k.trained},
-                          lerobot=tuple(lerobot_source(spec) for spec in getattr(args, "lerobot", ())),
+                          lerobot=lerobot,
                           max_grasp_offset=getattr(args, "grasp_offset", DEFAULT_GRASP_OFFSET_MM) / 1000.0,
                           insertion=getattr(args, "insertion", LibrarySources.insertion))
 

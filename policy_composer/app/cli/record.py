@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from policy_composer.app.arguments import at_least
+from policy_composer.app.arguments import at_least, names
 from policy_composer.app.cli.options import env_options, episode_workers, library_sources, model_options, workers_option
 from policy_composer.data.recipes import available_recipes
 from policy_composer.tasks.spec import EnvSettings
@@ -24,7 +24,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     recipe = load_recipe(args.recipe)
     sources = library_sources(args)
     if args.controllers:
-        chosen = tuple(args.controllers.split(","))
+        chosen = args.controllers
         known = (*recipe_controllers(recipe), *(s.controller_name for s in sources.lerobot))
         if recipe.driver == "expert" or set(chosen) - set(known) or (recipe.driver == "dagger" and len(chosen) > 1):
             raise RecipeError(f"--controllers must name controllers of recipe {recipe.name} or --lerobot ones "
@@ -54,7 +54,7 @@ def add_commands(sub) -> None:
     record.add_argument("--resume", action="store_true", help="continue an interrupted or shorter recording")
     env_options(record, grasp=False)
     record.set_defaults(resolution=None, clearance=None, seed=None)  # not given: the defaults, or the resumed dataset's
-    record.add_argument("--controllers", default=None,
+    record.add_argument("--controllers", type=names, default=None,
                         help="comma-separated subset of the recipe's controllers to record (recipes that run "
                              "the controllers), or the one a dagger recipe runs")
     model_options(record)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from policy_composer.app.arguments import add_config_options, at_least, config_from
+from policy_composer.app.arguments import add_config_options, at_least, config_from, names
 from policy_composer.app.cli.options import WORLD, dataset_path, env_options, make_env, training_threads
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 from policy_composer.policies.dmp.configuration_dmp import FIT_EPISODES, FIT_FIRST_SEED
@@ -54,7 +54,7 @@ def cmd_train_world_model(args: argparse.Namespace) -> int:
     training_threads(args.threads)
     timings = train_world_model(
         args.rollouts, args.demos, args.out, config_from(args, VAEConfig), config_from(args, DynamicsConfig),
-        controllers=args.controllers.split(",") if args.controllers else None, reuse_vae=args.reuse_vae)
+        controllers=list(args.controllers) if args.controllers else None, reuse_vae=args.reuse_vae)
     for what, seconds in timings.items():
         print(f"trained {what} in {seconds:.0f} s")
     return 0
@@ -66,7 +66,7 @@ def cmd_train_goal_score(args: argparse.Namespace) -> int:
 
     training_threads(args.threads)
     config = config_from(args, GoalScoreConfig)
-    for what, seconds in train_goal_scores(args.demos, args.out, tuple(args.cameras.split(",")), config).items():
+    for what, seconds in train_goal_scores(args.demos, args.out, args.cameras, config).items():
         print(f"trained {what} in {seconds:.0f} s")
     return 0
 
@@ -102,14 +102,15 @@ def add_commands(sub) -> None:
                                              "epochs": "vae-epochs"})
     add_config_options(tr_world, DynamicsConfig, {"epochs": "dynamics-epochs", "frame_skip": "frame-skip",
                                                   "num_mixtures": "mixtures"})
-    tr_world.add_argument("--controllers", default=None, help="comma-separated (default: every controller recorded)")
+    tr_world.add_argument("--controllers", type=names, default=None,
+                          help="comma-separated (default: every controller recorded)")
     tr_world.add_argument("--reuse-vae", action="store_true", help="keep the VAE in --out; train only dynamics models")
     tr_world.add_argument("--threads", type=at_least(1), default=2)
     tr_world.add_argument("--out", default=WORLD)
     tr_world.set_defaults(func=cmd_train_world_model)
     tr_goal = tr_sub.add_parser("goal-score", help="one goal scorer per camera on the full-task demos")
     tr_goal.add_argument("--demos", default=dataset_path("gear-full-task-demos"))
-    tr_goal.add_argument("--cameras", default=",".join(CAMERA_NAMES))
+    tr_goal.add_argument("--cameras", type=names, default=",".join(CAMERA_NAMES))
     add_config_options(tr_goal, GoalScoreConfig, {"epochs": "epochs", "image_size": "image-size",
                                                   "num_mixtures": "mixtures"})
     tr_goal.add_argument("--threads", type=at_least(1), default=2)
