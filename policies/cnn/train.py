@@ -113,8 +113,6 @@ def train_cnn_policy(root: str | Path | Sequence[str | Path], config: CNNPolicyC
                      data: dict[str, torch.Tensor] | None = None) -> tuple[CNNPolicy, list[float]]:
     """Fit the policy by maximum likelihood of the demonstrated actions; returns it and the loss per epoch. Its
     checkpoint folder `out` is checked and locked before the data is read."""
-    if not isinstance(root, (str, Path)):
-        check_distinct(root)
     with model_writer(out, CNNPolicyConfig) if out is not None else nullcontext():
         return _train(root, config, out, progress, data)
 

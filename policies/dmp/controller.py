@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from policy_composer.data.atomic import replacing_folder, safetensors_errors
+from policy_composer.data.atomic import check_replaceable, replacing_folder, safetensors_errors
 from policy_composer.learning.checkpoint import CheckpointError, check_finite
 from policy_composer.policies.arm import Outcome, Segment, run_activation
 from policy_composer.policies.dmp.configuration_dmp import DMPConfig
@@ -51,8 +51,8 @@ class DMPLibrary:
             for i, p in enumerate(prims):
                 if p is not None:
                     tensors[f"{name}.{i}"] = p.weights.astype(np.float64)
-        # A reader sees the old library or the new one, whole; a folder holding anything else is not replaced.
-        with replacing_folder(directory, DMP_FILES, "a DMP library") as tmp, safetensors_errors(directory):
+        check_replaceable(directory, DMP_FILES, "a DMP library")  # a folder holding anything else is not replaced
+        with replacing_folder(directory) as tmp, safetensors_errors(directory):  # the old library or the new, whole
             save_file(tensors, str(tmp / "dmp.safetensors"))
             (tmp / "dmp.json").write_text(json.dumps({"config": asdict(self.config), "durations": layout,
                                                       "demonstrations": self.demonstrations}, indent=1))

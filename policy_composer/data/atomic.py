@@ -60,12 +60,9 @@ def write_text(path: str | Path, text: str) -> Path:
 
 
 @contextmanager
-def replacing_folder(folder: str | Path, own: Collection[str] | None = None, what: str = "") -> Iterator[Path]:
-    """Yield an empty folder beside `folder` to fill; when the block ends without error it replaces `folder`. With
-    `own` (the files that `what` consists of), a `folder` holding anything else is refused first."""
+def replacing_folder(folder: str | Path) -> Iterator[Path]:
+    """Yield an empty folder beside `folder` to fill; when the block ends without error it replaces `folder`."""
     folder = Path(folder)
-    if own is not None:
-        check_replaceable(folder, own, what)
     folder.parent.mkdir(parents=True, exist_ok=True)
     tmp, old = _partial(folder), folder.with_name(f".{folder.name}.old")
     shutil.rmtree(tmp, ignore_errors=True)

@@ -9,8 +9,12 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from policy_composer.tasks.spec import ACTION_NAMES, CAMERA_NAMES, STATE_NAMES
+
+if TYPE_CHECKING:  # pyarrow is imported where a dataset is read
+    import pyarrow as pa
 
 LEROBOT_VERSION = "0.6.1"  # the release pyproject.toml pins; its datasets are of FORMAT_VERSION
 FORMAT_VERSION = "v3.0"
@@ -122,17 +126,20 @@ def check_files(root: Path, info: dict) -> None:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
+    data = {}
     for path in sorted((root / "data").rglob("*.parquet")) + sorted((root / "meta").rglob("*.parquet")):
         try:
-            pq.read_table(path)  # every row: a file damaged in the middle keeps a readable footer
+            table = pq.read_table(path)  # every row: a file damaged in the middle keeps a readable footer
         except (OSError, ValueError, pa.ArrowException) as e:
             raise DatasetError(f"{path} is not a readable parquet file ({e}); {REPAIR}") from None
+        if path.is_relative_to(root / "data"):
+            data[path.relative_to(root)] = table
     recorded = read_sidecar(root).get("data_digests", {})  # parquet has no checksums: damaged values still read
     changed = [rel for rel, digest in data_digests(root).items() if rel in recorded and recorded[rel] != digest]
     if changed:
         raise DatasetError(f"{root / changed[0]} does not hold what was recorded (its SHA-256 differs from the one "
                            f"saved with it); {REPAIR}")
-    bad = first_nonfinite(root)
+    bad = first_nonfinite(data)
     if bad:
         raise DatasetError(f"{root} holds a value that is not finite (NaN or Inf): {bad}; a model trained on it "
                            "would compute with it; record the dataset again, or remove that episode with "
@@ -145,14 +152,12 @@ def check_files(root: Path, info: dict) -> None:
     check_videos(root, info)
 
 
-def first_nonfinite(root: Path) -> str | None:
-    """Where the first NaN or Inf of the data files' float columns is (file, column, episode and frame), or None."""
+def first_nonfinite(tables: dict[Path, pa.Table]) -> str | None:
+    """Where the first NaN or Inf of the data tables' float columns is (file, column, episode and frame), or None."""
     import numpy as np
     import pyarrow as pa
-    import pyarrow.parquet as pq
 
-    for path in sorted((root / "data").rglob("*.parquet")):
-        table = pq.read_table(path)
+    for path, table in tables.items():
         for name in table.column_names:
             column = table.column(name).combine_chunks()
             while pa.types.is_list(column.type) or pa.types.is_fixed_size_list(column.type):
@@ -165,7 +170,7 @@ def first_nonfinite(root: Path) -> str | None:
                 row = int(bad[0]) * table.num_rows // len(values)  # list columns: equal lengths per row
                 where = ", ".join(f"{k} {table.column(k)[row].as_py()}" for k in ("episode_index", "frame_index")
                                   if k in table.column_names)
-                return f"{path.relative_to(root)}, column {name!r}, {where} ({values[bad[0]]})"
+                return f"{path}, column {name!r}, {where} ({values[bad[0]]})"
     return None
 
 

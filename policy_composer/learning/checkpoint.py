@@ -144,14 +144,16 @@ def finished(path: str | Path, config, made_with: dict[str, str] | None = None) 
 def load_checkpoint(path: str | Path, config_cls: type[C], build: Callable[[C], nn.Module], what: str,
                     train_hint: str) -> nn.Module:
     """Build the model from the checkpoint's config and load its weights, in eval mode."""
-    from safetensors.torch import load_file
+    from safetensors import safe_open
 
     config = load_config(path, config_cls, what, train_hint)
     model = build(config)
     weights = Path(path) / "model.safetensors"
     try:
-        tensors = load_file(str(weights))
-        trained_as = _trained_config(weights)
+        with safe_open(str(weights), "pt") as f:
+            tensors = {name: f.get_tensor(name) for name in f.keys()}  # noqa: SIM118  (a safetensors handle)
+            stored = (f.metadata() or {}).get("config")  # the config it was saved with; none in older files
+        trained_as = json.loads(stored) if stored is not None else None
         model.load_state_dict(tensors)
     except Exception as e:  # a truncated or foreign file: safetensors, or torch on missing and unexpected keys
         raise CheckpointError(f"{weights} does not hold the weights of this {what} "
@@ -164,15 +166,6 @@ def load_checkpoint(path: str | Path, config_cls: type[C], build: Callable[[C], 
                               f"it; restore it, or train the {what} again with `{train_hint}`")
     check_finite(weights, tensors, f"train it again with `{train_hint}`")
     return model.eval()
-
-
-def _trained_config(weights: Path) -> dict | None:
-    """The config the weights were saved with, from their own metadata (None for a file written without it)."""
-    from safetensors import safe_open
-
-    with safe_open(str(weights), "pt") as f:
-        stored = (f.metadata() or {}).get("config")
-    return json.loads(stored) if stored is not None else None
 
 
 def check_finite(path: Path, tensors: dict, fix: str) -> None:
