@@ -10,8 +10,9 @@ began, still holding the gear, and fails, so the selector can give the subtask t
 same when the subtask says it is off course (an insertion that leads the gear away from the peg, or ends with the
 gear still in the hand beside it).
 
-Initiation sets and outcomes are judged on the simulator's state (`env.evaluate()`, the gear pose): they
-stand for the perception that decides where each controller may run, and the controllers' own inputs stay
+Initiation sets, terminations and guards read the task's predicates through the controller's `senses` (see
+policies/senses.py: classifiers of the cameras and joints, or the simulator's truth for recording and the oracle's
+figures) and the scene as the robot knows it (`SceneGeometry`: its own kinematics); the controllers' inputs stay
 their own (joint angles for planning and DMPs, camera pixels for the CNN).
 """
 
@@ -25,8 +26,9 @@ import torch
 
 from policy_composer.policies.base import Controller
 from policy_composer.policies.planning import VELOCITY_LIMIT
+from policy_composer.policies.senses import OracleSenses, Percept, Senses
 from policy_composer.tasks.gear_assembly import CARRY_CLEARANCE
-from policy_composer.tasks.gear_kinematics import JOINT_HIGH, JOINT_LOW, plate_direction
+from policy_composer.tasks.gear_kinematics import JOINT_HIGH, JOINT_LOW
 
 GRIPPER_OPEN, GRIPPER_CLOSED = 1.0, -1.0
 RELEASE_HEIGHT = 0.012  # gear bottom above the plate when the gripper opens (m)
@@ -57,43 +59,53 @@ def np0(x: torch.Tensor) -> np.ndarray:
 
 
 class SceneGeometry:
-    """Where things are and where the nominal grasp puts them (all world frame)."""
+    """Where things are as the robot knows them (world frame): its hands from its joints, the peg module from the right
+    hand that holds it and the hand-over's calibration (`module_in_hand`), the gear and peg from their drawings
+    (`gear_spec`). The one thing given from the simulator is the gear's position for the pick-up's planner
+    (`planner_gear`), with `gear_noise` (m, per axis in the table's plane) where the figures ask for it."""
 
-    def __init__(self, env):
+    def __init__(self, env, gear_noise: float = 0.0):
         self.env = env.unwrapped if hasattr(env, "unwrapped") else env
-        spec = self.env.gear_spec
-        self.grasp_height = spec.grasp_height
-        self.spec = spec
+        self.spec = self.env.gear_spec
+        self.grasp_height = self.spec.grasp_height
+        self.gear_noise = gear_noise
+        self.rng = np.random.default_rng()
+
+    def seed(self, seed: int | None) -> None:
+        """Draw the planner input's noise of an activation from `seed`."""
+        self.rng = np.random.default_rng(seed)
+
+    def module_pose(self):
+        """The peg module's pose: the right hand's (forward kinematics) times the calibrated grasp on the module."""
+        return self.env.right_arm.tcp.pose * self.env.module_in_hand
+
+    def _module_matrix(self) -> np.ndarray:
+        return np0(self.module_pose().to_transformation_matrix())
 
     def finger_dir(self) -> np.ndarray:
-        d = plate_direction(self.env)
+        """The peg module's long axis, level: the controllers grasp across it."""
+        d = self._module_matrix()[:3, 0].copy()
         d[2] = 0.0
         return d / np.linalg.norm(d)
 
-    def gear(self) -> np.ndarray:
-        return np0(self.env.gear.pose.p)
+    def planner_gear(self) -> np.ndarray:
+        """The gear's position as the pick-up's planner is given it (the task's privileged planner input)."""
+        return self.env.planner_gear_position(self.gear_noise, self.rng)
 
     def tcp(self) -> np.ndarray:
         return np0(self.env.left_arm.tcp.pose.p)
 
-    def gear_tilt(self) -> float:
-        """Degrees between the gear's axis and the vertical."""
-        up = float(self.env.gear.pose.to_transformation_matrix()[0, 2, 2])
-        return float(np.degrees(np.arccos(np.clip(up, -1.0, 1.0))))
-
-    def grasp_shift(self) -> float:
-        """How far the gear's axis is from the TCP across (m): its offset along the fingers, for a level gear."""
-        return float(np.linalg.norm((self.gear() - self.tcp())[:2]))
-
     def peg_top(self) -> np.ndarray:
-        return np0(self.env.peg_top.p)
+        m = self._module_matrix()
+        return m[:3, 3] + m[:3, 2] * self.spec.peg_height
+
+    def held_gear_height(self) -> float:
+        """How high a gear held at the nominal grasp has its bottom above the peg module's plate (m)."""
+        return float(self.tcp()[2] - self.grasp_height - (self.peg_top()[2] - self.spec.peg_height))
 
     def pre_insertion_tcp(self) -> np.ndarray:
         """TCP position that puts a centred gear's bottom CARRY_CLEARANCE above the peg top."""
         return self.peg_top() + [0, 0, CARRY_CLEARANCE + self.grasp_height]
-
-    def info(self) -> dict:
-        return {k: bool(v[0]) if v.dtype == torch.bool else float(v[0]) for k, v in self.env.evaluate().items()}
 
 
 class LeftArmController(Controller):
@@ -104,10 +116,11 @@ class LeftArmController(Controller):
     subtask = None  # the policy_composer.policies.subtasks.Subtask it serves: guards the release, says how to back off
     ik = None  # a LeftArmIK (subclasses that serve a subtask set it)
 
-    def __init__(self, env):
+    def __init__(self, env, senses: Senses | None = None):
         self.env = env.unwrapped if hasattr(env, "unwrapped") else env
         self.rate_hz = float(self.env.control_freq)
         self.scene = SceneGeometry(self.env)
+        self.senses: Senses = senses or OracleSenses(self.env)  # the library gives its controllers one to share
         self.outcome = Outcome.DONE
         self.reason = ""
         self._gripper = GRIPPER_OPEN
@@ -117,8 +130,8 @@ class LeftArmController(Controller):
         """The next (7 joint targets, gripper command), or None when the controller has finished."""
         raise NotImplementedError
 
-    def succeeded(self, info: dict) -> tuple[bool, str]:
-        """Judge the finished activation: (success, reason if not)."""
+    def succeeded(self, percept: Percept) -> tuple[bool, str]:
+        """Judge the finished activation from what is sensed at its end: (success, reason if not)."""
         return True, ""
 
     def remark(self) -> str:
@@ -128,6 +141,7 @@ class LeftArmController(Controller):
     # ------------------------------------------------------------ the interface
     def reset(self, obs, seed: int | None = None) -> None:
         self.outcome, self.reason = Outcome.RUNNING, ""
+        self.scene.seed(seed)
         self._hold = np0(self.env.hold_action())
         self._last = self.left_qpos(obs)
         self._gripper = float(self._hold[7])
@@ -140,7 +154,7 @@ class LeftArmController(Controller):
             cmd = self._guarded_command(obs)
             if cmd is None:
                 backed_off = self._back_off is not None
-                ok, why = (False, self._back_off_reason) if backed_off else self.succeeded(self.scene.info())
+                ok, why = (False, self._back_off_reason) if backed_off else self.succeeded(self.senses(obs))
                 self.outcome = Outcome.DONE if ok else Outcome.FAILED
                 self.reason = "; ".join(r for r in ("" if ok else why, self.remark()) if r)
             else:
@@ -170,8 +184,9 @@ class LeftArmController(Controller):
             if self.subtask is None:
                 return cmd
             opening = cmd is not None and cmd[1] > 0
-            why = ((self.subtask.release_blocked(self.scene.info()) if opening else "")
-                   or self.subtask.off_course(self.scene, cmd is None))
+            percept = self.senses(obs)
+            why = ((self.subtask.release_blocked(percept, self.scene) if opening else "")
+                   or self.subtask.off_course(percept, cmd is None))
             if not why:
                 return cmd
             path = self.subtask.back_off(self.ik, self.scene, np0(self.env.left_arm.robot.get_qpos()))
@@ -205,8 +220,7 @@ class LeftArmController(Controller):
         return np0(obs["extra"]["state"])[:7]
 
     def describe(self, obs) -> str:
-        info = self.scene.info()
-        return ", ".join(f"{k}={info[k]}" for k in ("gear_grasped", "gear_lifted", "gear_at_peg", "success"))
+        return self.senses(obs).why("gear_grasped", "gear_lifted", "gear_at_peg", "gear_seated")
 
 
 def ramp(q_from: np.ndarray, q_to: np.ndarray, rate_hz: float) -> np.ndarray:

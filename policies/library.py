@@ -12,6 +12,7 @@ from pathlib import Path
 
 from policy_composer.policies.base import Controller
 from policy_composer.policies.registry import LibraryError, get_kind, kind_of, kinds
+from policy_composer.policies.senses import OracleSenses, Senses
 
 # Where a kind's trained model is unless LibrarySources.models says otherwise: MODELS/KIND (the training commands'
 # default output).
@@ -19,7 +20,7 @@ MODELS = Path("results/models")
 
 # Bumped when the controllers behave differently, so that stored runs of the old ones are not reused (CHANGELOG.md
 # says what each revision changed).
-LIBRARY_REVISION = 10
+LIBRARY_REVISION = 11
 
 __all__ = ["LIBRARY_REVISION", "LeRobotSource", "LibraryError", "LibrarySources", "all_names", "build_library",
            "cameras_needed", "check_models", "model_ids", "names_of_kind", "subtask_of"]
@@ -45,6 +46,7 @@ class LibrarySources:
     models: dict[str, str] = field(default_factory=dict)  # kind name -> model path (default: MODELS/KIND)
     lerobot: tuple[LeRobotSource, ...] = field(default_factory=tuple)
     max_grasp_offset: float = 0.012  # the pick-up's perception error along the fingers (m)
+    gear_noise: float = 0.0  # noise on the planner's given gear position, per axis in the table's plane (m)
     insertion: str = "feel"  # how the planned insertions go down the peg: a key of subtasks.INSERTIONS
 
     def __post_init__(self):
@@ -140,9 +142,12 @@ def check_models(names, sources: LibrarySources) -> None:
         models[kind]  # noqa: B018
 
 
-def build_library(env, names=None, sources: LibrarySources | None = None) -> dict[str, Controller]:
-    """The named controllers (default: every one of `all_names(sources)`), ready to start in `env`."""
+def build_library(env, names=None, sources: LibrarySources | None = None,
+                  senses: Senses | None = None) -> dict[str, Controller]:
+    """The named controllers (default: every one of `all_names(sources)`), ready to start in `env`, all perceiving
+    the task's predicates through `senses` (default: the simulator's truth, as for recording)."""
     sources = sources or LibrarySources()
+    senses = senses or OracleSenses(env)
     lerobot = {s.controller_name: s for s in sources.lerobot}
     names = tuple(names) if names is not None else all_names(sources)
     models, library = _Models(sources), {}
@@ -158,4 +163,7 @@ def build_library(env, names=None, sources: LibrarySources | None = None) -> dic
             raise LibraryError(f"no controller named {name!r}; the library has {', '.join(all_names(sources))}")
         subtask = sources.subtask(name.removeprefix(f"{kind.name}_"))
         library[name] = kind.function("build")(env, subtask, models[kind], kind.config(), sources.max_grasp_offset)
+    for controller in library.values():
+        controller.senses = senses
+        controller.scene.gear_noise = sources.gear_noise
     return library

@@ -1,7 +1,8 @@
 """The gear task's subtasks as waypoints: what a controller must reach, independent of how it moves.
 
 A subtask turns the scene into a list of waypoints (goal configurations by IK, with the gripper command and
-whether the way there is free space or a straight TCP line), an initiation set and a success test. The
+whether the way there is free space or a straight TCP line), an initiation set and a success test, both made of the
+task's predicates as the controller perceives them (a `Percept`, see policies/senses.py). The
 motion-planning controllers connect the waypoints with RRT-Connect and IK lines; the DMP controllers connect
 the same waypoints with movement primitives learned from the planner's trajectories.
 
@@ -29,7 +30,8 @@ from policy_composer.policies.arm import (
     np0,
 )
 from policy_composer.policies.planning import VELOCITY_LIMIT, PlanningError, SceneCollisionModel
-from policy_composer.tasks.gear_assembly import CARRY_CLEARANCE, INSERT_TILT_DEG, PRE_INSERT_RADIUS
+from policy_composer.policies.senses import Percept
+from policy_composer.tasks.gear_assembly import CARRY_CLEARANCE
 from policy_composer.tasks.gear_kinematics import LeftArmIK
 
 PRE_GRASP_HEIGHT = 0.08  # TCP above the grasp point before descending (m)
@@ -42,11 +44,6 @@ CLEAR_HEIGHT = 0.05  # the re-grasp first lifts the gear straight up this far, c
 RELEASE_HEIGHT_MAX = RELEASE_HEIGHT + 0.008
 SEARCH_STEP = 0.004  # the insertion's guesses at the gear's offset along the fingers are this far apart (m)
 SEARCH_CLEARANCE = 0.008  # between guesses, the gear's bottom goes back up this far above the peg's top (m)
-# An insertion that takes the gear this far off the peg's axis stops (m): past the pre-insertion tolerance and the
-# farthest wrong guess (12 mm the other way of a gear 12 mm off-centre), which lands the gear on the peg's top;
-# below the top, it stops nearer: a gear pushed down beside the peg tips in the fingers and falls.
-OFF_COURSE_RADIUS = 0.03
-BESIDE_PEG_RADIUS = PRE_INSERT_RADIUS + 0.005
 # A probing descent is blocked when, over the last STALL_STEPS control steps, the TCP (joint positions and forward
 # kinematics only) went down less than a third of the at least STALL_DESCENT its targets went down.
 STALL_STEPS, STALL_DESCENT = 2, 0.004
@@ -101,25 +98,27 @@ class Subtask:
     # Offsets (m) to assume in turn, each time a probing waypoint is blocked; () draws the pick-up's perception error.
     search: tuple[float, ...] = ()
 
-    def can_start(self, scene: SceneGeometry) -> bool:
+    def can_start(self, percept: Percept) -> bool:
         raise NotImplementedError
 
-    def waypoints(self, ik: LeftArmIK, scene: SceneGeometry, q_now: np.ndarray, grasp_offset: float) -> list[Waypoint]:
+    def waypoints(self, ik: LeftArmIK, scene: SceneGeometry, q_now: np.ndarray, grasp_offset: float,
+                  percept: Percept) -> list[Waypoint]:
         """The way through the subtask for a gear (to be) held `grasp_offset` along the fingers."""
         raise NotImplementedError
 
-    def retry(self, ik: LeftArmIK, scene: SceneGeometry, q_now: np.ndarray, grasp_offset: float) -> list[Waypoint]:
+    def retry(self, ik: LeftArmIK, scene: SceneGeometry, q_now: np.ndarray, grasp_offset: float,
+              percept: Percept) -> list[Waypoint]:
         """The way from a blocked probe for the next guess (the same waypoints as the first)."""
-        return self.waypoints(ik, scene, q_now, grasp_offset)
+        return self.waypoints(ik, scene, q_now, grasp_offset, percept)
 
-    def succeeded(self, info: dict) -> tuple[bool, str]:
+    def succeeded(self, percept: Percept) -> tuple[bool, str]:
         raise NotImplementedError
 
-    def release_blocked(self, info: dict) -> str:
+    def release_blocked(self, percept: Percept, scene: SceneGeometry) -> str:
         """Why the gripper must not open now ("" if it may)."""
         return ""
 
-    def off_course(self, scene: SceneGeometry, finished: bool) -> str:
+    def off_course(self, percept: Percept, finished: bool) -> str:
         """Why a controller of this subtask must stop now and back off with the gear, though it would go on
         (`finished`: it has nothing more to do) ("" if it need not)."""
         return ""
@@ -135,21 +134,21 @@ class Pick(Subtask):
     name = "pick"
     initiation = "gear on the table, let go or still between the fingers (a lift that did not take it up)"
 
-    def can_start(self, scene):
+    def can_start(self, percept):
         # A pick-up that closed on the gear but stalled before the lift leaves it grasped on the table: the pick-up's
         # first waypoint opens the hand on its way up, and grasps afresh.
-        return scene.gear()[2] < 0.02 and not scene.info()["gear_inserted"]
+        return percept["gear_on_table"] and not percept["gear_on_peg"]
 
-    def waypoints(self, ik, scene, q_now, grasp_offset):
-        grasp = scene.gear() + scene.finger_dir() * grasp_offset + [0, 0, scene.grasp_height]
+    def waypoints(self, ik, scene, q_now, grasp_offset, percept):
+        grasp = scene.planner_gear() + scene.finger_dir() * grasp_offset + [0, 0, scene.grasp_height]
         quat, q_pre = ik_hand_down(ik, scene, grasp + [0, 0, PRE_GRASP_HEIGHT], q_now)
         down = line_to(ik, q_pre, grasp, quat, GRIPPER_OPEN, step=0.004)
         up = line_to(ik, down.q, grasp + [0, 0, LIFT_HEIGHT], quat, GRIPPER_CLOSED, step=0.006)
         return [Waypoint("free", q_pre, GRIPPER_OPEN, settle=6), down,
                 Waypoint("hold", down.q, GRIPPER_CLOSED, settle=8), up]
 
-    def succeeded(self, info):
-        return info["gear_lifted"], "the gear is not in the gripper after the lift"
+    def succeeded(self, percept):
+        return percept["gear_lifted"], f"the gear is not in the gripper after the lift ({percept.why('gear_lifted')})"
 
 
 class Move(Subtask):
@@ -158,20 +157,19 @@ class Move(Subtask):
                   "fingers' centre, not yet held above the peg")
     holds_gear = True
 
-    def can_start(self, scene):
+    def can_start(self, percept):
         # A gear tipped in the fingers, or pushed along them, past what the pre-insertion pose allows stays so
         # wherever the hand takes it: the moves after an insertion that had done it failed one after another,
         # until the re-grasp.
-        info = scene.info()
-        return (info["gear_lifted"] and not info["gear_at_peg"] and not info["gear_inserted"]
-                and scene.gear_tilt() < INSERT_TILT_DEG and scene.grasp_shift() < PRE_INSERT_RADIUS)
+        return percept["gear_held_level"] and not percept["gear_at_peg"] and not percept["gear_on_peg"]
 
-    def waypoints(self, ik, scene, q_now, grasp_offset):
+    def waypoints(self, ik, scene, q_now, grasp_offset, percept):
         _, q = ik_hand_down(ik, scene, scene.pre_insertion_tcp(), q_now)
         return [Waypoint("free", q, GRIPPER_CLOSED, settle=6)]
 
-    def succeeded(self, info):
-        return info["gear_at_peg"], "the gear is not at the pre-insertion pose above the peg"
+    def succeeded(self, percept):
+        return percept["gear_at_peg"], (f"the gear is not at the pre-insertion pose above the peg "
+                                        f"({percept.why('gear_at_peg')})")
 
 
 class Insert(Subtask):
@@ -188,16 +186,16 @@ class Insert(Subtask):
     releases = True
     search = (0.0, *(sign * k * SEARCH_STEP for k in (1, 2, 3) for sign in (1, -1)))
 
-    def can_start(self, scene):
+    def can_start(self, percept):
         # Part-way down: where a closed-loop insertion stalled with the gear in the hand.
-        info = scene.info()
-        return info["gear_at_peg"] or (info["gear_grasped"] and info["gear_inserted"] and not info["success"])
+        return percept["gear_at_peg"] or (percept["gear_grasped"] and percept["gear_on_peg"]
+                                          and not percept["gear_seated"])
 
-    def waypoints(self, ik, scene, q_now, grasp_offset, clearance=CARRY_CLEARANCE):
+    def waypoints(self, ik, scene, q_now, grasp_offset, percept, clearance=CARRY_CLEARANCE):
         # The TCP over the peg's axis, shifted along the fingers so that a gear `grasp_offset` off-centre is on it;
         # a gear already down the peg goes on straight down from where the hand holds it.
         tcp, h = scene.tcp(), scene.grasp_height
-        on_peg = scene.info()["gear_inserted"]
+        on_peg = percept["gear_on_peg"]
         top = (np.array([tcp[0], tcp[1], scene.peg_top()[2]]) if on_peg
                else scene.peg_top() + scene.finger_dir() * grasp_offset)
         quat, _ = ik_hand_down(ik, scene, tcp, q_now)
@@ -209,33 +207,29 @@ class Insert(Subtask):
         back = line_to(ik, down.q, release + [0, 0, RETREAT_HEIGHT], quat, GRIPPER_OPEN, step=0.006)
         return [align, down, Waypoint("hold", down.q, GRIPPER_OPEN, settle=8), back]
 
-    def retry(self, ik, scene, q_now, grasp_offset):
-        return self.waypoints(ik, scene, q_now, grasp_offset, clearance=SEARCH_CLEARANCE)
+    def retry(self, ik, scene, q_now, grasp_offset, percept):
+        return self.waypoints(ik, scene, q_now, grasp_offset, percept, clearance=SEARCH_CLEARANCE)
 
-    def succeeded(self, info):
-        return info["success"], "the gear is not seated on the peg"
+    def succeeded(self, percept):
+        return percept["gear_seated"], f"the gear is not seated on the peg ({percept.why('gear_seated')})"
 
-    def release_blocked(self, info):
-        if info["gear_grasped"] and not info["gear_inserted"]:
-            return "the gear did not go down the peg (it would have been let go on top of it)"
-        if info["gear_grasped"] and info["height_above_base"] > RELEASE_HEIGHT_MAX:
-            return (f"the gear is only part-way down the peg ({1000 * info['height_above_base']:.0f} mm above the "
-                    f"plate; it would have been let go where it sticks)")
+    def release_blocked(self, percept, scene):
+        if percept["gear_grasped"] and not percept["gear_on_peg"]:
+            return (f"the gear did not go down the peg; it would have been let go on top of it "
+                    f"({percept.why('gear_grasped', 'gear_on_peg')})")
+        height = scene.held_gear_height()
+        if percept["gear_grasped"] and height > RELEASE_HEIGHT_MAX:
+            return (f"the gear is only part-way down the peg ({1000 * height:.0f} mm above the plate by the hand's "
+                    f"height; it would have been let go where it sticks)")
         return ""
 
-    def off_course(self, scene, finished):
-        """A controller that leads the gear away from the peg, or stops with it in the hand and off the peg, would
-        leave it where no controller may start: the insertion's termination condition."""
-        info = scene.info()
-        if not info["gear_grasped"] or info["gear_inserted"]:
+    def off_course(self, percept, finished):
+        """A controller that leads the gear away from the peg or tips it in the fingers, or stops with it in the hand
+        and off the peg, would leave it where no controller may start: the insertion's termination condition."""
+        if not percept["gear_grasped"] or percept["gear_on_peg"]:
             return ""
-        tilt = scene.gear_tilt()
-        if tilt > INSERT_TILT_DEG:  # pressed against the peg or the plate: pushing on would turn it over
-            return f"the gear tipped {tilt:.0f} degrees in the fingers"
-        radial, below_top = info["radial_offset"], info["height_above_base"] < scene.spec.peg_height - 0.003
-        if radial > OFF_COURSE_RADIUS or (below_top and radial > BESIDE_PEG_RADIUS):
-            return (f"the gear was led away from the peg ({1000 * radial:.0f} mm off its axis"
-                    f"{', below its top' if below_top else ''})")
+        if percept["gear_off_course"]:
+            return f"the gear was tipped or led away from the peg ({percept.why('gear_off_course')})"
         return "it stopped with the gear in the hand, off the peg" if finished else ""
 
     def back_off(self, ik, scene, q_now):
@@ -258,12 +252,11 @@ class Regrasp(Subtask):
     releases = True
     holds_gear = True
 
-    def can_start(self, scene):
+    def can_start(self, percept):
         # Part-way down the peg too: its first waypoint lifts the gear straight up, clear of the peg.
-        info = scene.info()
-        return info["gear_lifted"] and not info["success"]
+        return percept["gear_lifted"] and not percept["gear_seated"]
 
-    def waypoints(self, ik, scene, q_now, grasp_offset):
+    def waypoints(self, ik, scene, q_now, grasp_offset, percept):
         tcp, quat = scene.tcp(), np0(ik.arm.tcp.pose.q)
         clear = line_to(ik, q_now, tcp + [0, 0, CLEAR_HEIGHT], quat, GRIPPER_CLOSED, step=0.006, settle=0)
         place = np.array([*PLACE_XY, scene.grasp_height + PLACE_DROP])
@@ -273,8 +266,8 @@ class Regrasp(Subtask):
         return [clear, Waypoint("free", q_above, GRIPPER_CLOSED, settle=6), down,
                 Waypoint("hold", down.q, GRIPPER_OPEN, settle=8), up]
 
-    def succeeded(self, info):
-        return info["gear_on_table"], "the gear is not lying flat on the table"
+    def succeeded(self, percept):
+        return percept["gear_lying_flat"], f"the gear is not lying flat on the table ({percept.why('gear_lying_flat')})"
 
 
 class InsertStraightDown(Insert):
@@ -296,8 +289,9 @@ class SubtaskController(ScriptedController):
 
     kind = ""  # "mp", "dmp"
 
-    def __init__(self, env, subtask: Subtask, max_grasp_offset: float = 0.012, grasp_offset: float | None = None):
-        super().__init__(env)
+    def __init__(self, env, subtask: Subtask, max_grasp_offset: float = 0.012, grasp_offset: float | None = None,
+                 senses=None):
+        super().__init__(env, senses)
         self.subtask = subtask
         self.name = f"{self.kind}_{subtask.name}"
         self.initiation = subtask.initiation
@@ -308,10 +302,10 @@ class SubtaskController(ScriptedController):
         self.tries = 0  # how many offsets the last activation tried (Subtask.search)
 
     def can_start(self, obs) -> bool:
-        return self.subtask.can_start(self.scene)
+        return self.subtask.can_start(self.senses(obs))
 
-    def succeeded(self, info: dict) -> tuple[bool, str]:
-        return self.subtask.succeeded(info)
+    def succeeded(self, percept: Percept) -> tuple[bool, str]:
+        return self.subtask.succeeded(percept)
 
     def q9(self, obs) -> np.ndarray:
         state = np0(obs["extra"]["state"])
@@ -326,7 +320,8 @@ class SubtaskController(ScriptedController):
             offset = rng.uniform(-self.max_grasp_offset, self.max_grasp_offset)
             self.grasp_offset = float(offset if self.fixed_grasp_offset is None else self.fixed_grasp_offset)
         self.tries = 1
-        return self._connect(obs, self.subtask.waypoints(self.ik, self.scene, self.q9(obs), self.grasp_offset), seed)
+        return self._connect(obs, self.subtask.waypoints(self.ik, self.scene, self.q9(obs), self.grasp_offset,
+                                                         self.senses(obs)), seed)
 
     def _connect(self, obs, waypoints: list[Waypoint], seed: int | None) -> list[Segment]:
         """connect(), noting the commanded TCP heights of the probing segments (for `blocked`)."""
@@ -340,7 +335,7 @@ class SubtaskController(ScriptedController):
         if self.guesses and self.blocked(obs):  # back up and line up for the next guess
             self.grasp_offset, self.tries = self.guesses.pop(0), self.tries + 1
             self.segments = self._connect(obs, self.subtask.retry(self.ik, self.scene, self.q9(obs),
-                                                                  self.grasp_offset), None)
+                                                                  self.grasp_offset, self.senses(obs)), None)
             self._k, self._t = 0, 0
         return super().next_command(obs)
 
@@ -385,17 +380,21 @@ class LearnedController(LeftArmController):
 
     action_kind = "joint_targets"
 
-    def __init__(self, env, subtask: Subtask, name: str, max_steps: int = 120):
-        super().__init__(env)
+    def __init__(self, env, subtask: Subtask, name: str, max_steps: int = 120, senses=None):
+        super().__init__(env, senses)
         self.subtask, self.name, self.initiation, self.max_steps = subtask, name, subtask.initiation, max_steps
         self.ik = LeftArmIK(self.env)
         self.guard = SceneCollisionModel()
 
     def can_start(self, obs) -> bool:
-        return self.subtask.can_start(self.scene)
+        return self.subtask.can_start(self.senses(obs))
 
-    def succeeded(self, info):
-        return (False, self._stopped) if self._stopped else self.subtask.succeeded(info)
+    def succeeded(self, percept):
+        if self._stopped:
+            return False, self._stopped
+        ok, why = self.subtask.succeeded(percept)
+        spent = self._steps >= self.max_steps
+        return ok, why if ok or not spent else f"its step budget ({self.max_steps} steps) ran out: {why}"
 
     def reset(self, obs, seed=None):
         super().reset(obs, seed)
@@ -404,9 +403,9 @@ class LearnedController(LeftArmController):
         self.guard.set_scene(np0(self.env.right_arm.robot.get_qpos()), None, self.scene.spec, table=False)
 
     def next_command(self, obs):
-        info = self.scene.info()
-        achieved = self.subtask.succeeded(info)[0]
-        let_go = self._gripper > 0 and not info["gear_grasped"]
+        percept = self.senses(obs)
+        achieved = self.subtask.succeeded(percept)[0]
+        let_go = self._gripper > 0 and not percept["gear_grasped"]
         if self._steps >= self.max_steps or (achieved and (let_go or not self.subtask.releases)):
             return None
         self._steps += 1

@@ -10,9 +10,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from policy_composer.learning.config import BACKBONES, TrainingConfig, check_options, option
-from policy_composer.tasks.spec import CAMERA_NAMES
+from policy_composer.tasks.spec import CAMERA_NAMES, PREDICATES
 
 GOAL_SCORES = ("image", "latent")  # what the selector's goal score reads: each prediction decoded, or the latent
+# Where the library's controllers have the task's predicates from: classifiers of the cameras and joints, or the
+# simulator's truth (privileged: the oracle's side of the figures).
+SENSES = ("learned", "oracle")
 
 
 @dataclass
@@ -72,6 +75,28 @@ class LatentGoalScoreConfig(TrainingConfig):
 
 
 @dataclass
+class PredicateConfig(TrainingConfig):
+    """One of the task's predicates (PREDICATES) as a robot has it: a binary classifier of the cameras' images,
+    stacked, and the joint state, trained on the recordings' labels."""
+
+    predicate: str = option("gear_seated", "the predicate", tuple(PREDICATES))
+    cameras: tuple[str, ...] = ("head", "left_forearm")  # the cameras of every recording they train on
+    image_size: int = option(64, "images are resized to this square", minimum=16)
+    hidden_dim: int = 128
+    shift: int = 4  # random-shift augmentation (pixels)
+    weight_decay: float = 1e-6
+    batch_size: int = option(128, "minibatch size", minimum=1)
+    epochs: int = option(6, "predicate training epochs", minimum=1)
+
+    def __post_init__(self):
+        self.cameras = tuple(self.cameras)  # a list when read back from JSON
+        unknown = [c for c in self.cameras if c not in CAMERA_NAMES]
+        if unknown or not self.cameras:
+            raise ValueError(f"a predicate reads some of the cameras {list(CAMERA_NAMES)}, not {list(self.cameras)}")
+        super().__post_init__()
+
+
+@dataclass
 class ComposeConfig:
     horizon: int = option(10, "n: dynamics steps looked ahead (paper: 10)", minimum=1)
     samples: int = option(16, "K: sampled rollouts per controller", minimum=1)
@@ -82,6 +107,8 @@ class ComposeConfig:
                                minimum=1)
     episode_failures: int = option(2, "a controller that failed this often in the episode is not chosen again",
                                    minimum=1)
+    senses: str = option("learned", "where the controllers have the task's predicates from: the world model's "
+                         "classifiers, or the simulator's truth (the oracle)", SENSES)
 
     def __post_init__(self):
         check_options(self)

@@ -3,7 +3,8 @@
 - the VAE on the VAE camera's frames of the controller rollouts and the training full-task demos;
 - one dynamics model per controller, on that controller's rollout frames only;
 - one goal scorer per camera on the training full-task demos (the VAE camera's also on their reconstructions),
-  and one on the VAE's latents of those demos.
+  and one on the VAE's latents of those demos;
+- one classifier per task predicate on the labelled recordings (the controllers' senses), held-out episodes apart.
 """
 
 from __future__ import annotations
@@ -18,10 +19,19 @@ from policy_composer.data.features import DatasetError, image_key, read_sidecar
 from policy_composer.data.frames import load_frames, to_model_image
 from policy_composer.data.recipes import check_recipe
 from policy_composer.learning.checkpoint import check_out, finished, model_writer, weights_id
-from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, LatentGoalScoreConfig, VAEConfig
+from policy_composer.policies.cnn.train import check_distinct
+from policy_composer.selector.configuration import (
+    DynamicsConfig,
+    GoalScoreConfig,
+    LatentGoalScoreConfig,
+    PredicateConfig,
+    VAEConfig,
+)
 from policy_composer.selector.dynamics import train_dynamics
 from policy_composer.selector.goal_score import train_goal_score, train_latent_goal_score
+from policy_composer.selector.predicates import held_out, train_predicates
 from policy_composer.selector.vae import VAE, load_vae, train_vae
+from policy_composer.tasks.spec import PREDICATES
 
 
 def demo_split(root: str | Path, split: str) -> list[int]:
@@ -146,6 +156,22 @@ def _train_goal_scores(out: Path, demos, cameras: tuple[str, ...], config: GoalS
     train_latent_goal_score(*posteriors(vae, images), frames["progress"], latent_config, path, progress, parts)
     timings["goal score latent"] = time.perf_counter() - t0
     return timings
+
+
+def train_predicate_models(datasets: list[str | Path], out: str | Path, config: PredicateConfig | None = None,
+                           progress: bool = True, resume: bool = False) -> dict[str, dict]:
+    """One classifier per predicate on the labelled recordings `datasets` (every fifth episode of each held out);
+    returns each one's held-out figures and training time (s)."""
+    config = config or PredicateConfig()
+    check_distinct(datasets)
+    with model_writer(out):
+        frames = [load_frames(d, config.cameras, config.image_size,
+                              required={"predicates": (len(PREDICATES),), "observation.state": None},
+                              progress=progress) for d in datasets]
+        keys = (*(image_key(c) for c in config.cameras), "observation.state", "predicates")
+        joined = {k: torch.cat([f[k] for f in frames]) for k in keys}
+        joined["held_out"] = torch.cat([held_out(f["episode_index"]) for f in frames])
+        return train_predicates(joined, out, config, progress=progress, resume=resume)
 
 
 @torch.no_grad()

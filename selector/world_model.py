@@ -5,6 +5,7 @@ and the goal score of decoded latents. Trained from recorded datasets, saved as 
     ROOT/dynamics/<controller> one latent dynamics model per controller
     ROOT/goal_score/<camera>   one goal scorer per camera; the VAE's camera's scores the selector's decoded predictions
     ROOT/goal_score/latent     the goal scorer of the VAE's latents: scores the predictions without decoding them
+    ROOT/predicates/<name>     one classifier per task predicate: what the library's controllers sense
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import torch
 
 from policy_composer.data.frames import to_model_image
 from policy_composer.learning.checkpoint import CheckpointError, trained_with, weights_id
+from policy_composer.policies.senses import OracleSenses, Senses
 from policy_composer.selector.batched import LatentSelector
 from policy_composer.selector.configuration import GOAL_SCORES
 from policy_composer.selector.dynamics import LatentDynamics, load_dynamics
@@ -24,6 +26,7 @@ from policy_composer.selector.goal_score import (
     load_goal_score,
     load_latent_goal_score,
 )
+from policy_composer.selector.predicates import LearnedSenses, PredicateModel, load_predicates
 from policy_composer.selector.vae import VAE, load_vae
 
 
@@ -45,7 +48,7 @@ class GearWorldModel:
     """Implements the selector's GoalScore on latents, and turns observations into latents."""
 
     def __init__(self, vae: VAE, dynamics: dict[str, LatentDynamics], goal: GoalScoreModel | LatentGoalScoreModel,
-                 controller_models: dict[str, str] | None = None):
+                 controller_models: dict[str, str] | None = None, predicates: dict[str, PredicateModel] | None = None):
         camera = vae.config.camera
         self.latent_goal = isinstance(goal, LatentGoalScoreModel)
         if self.latent_goal and goal.config.latent_dim != vae.config.latent_dim:
@@ -63,12 +66,15 @@ class GearWorldModel:
         self.decoder = vae.inference_decoder()
         self.camera = camera
         self.controller_models = controller_models or {}  # the model each dynamics model's rollouts ran, by id
+        self.predicates = predicates or {}
         self.frame_skip = skips.pop() if skips else 1
 
     @classmethod
-    def load(cls, root: str | Path, controllers: list[str] | None = None, goal_score: str = "image") -> GearWorldModel:
+    def load(cls, root: str | Path, controllers: list[str] | None = None, goal_score: str = "image",
+             predicates: bool = False) -> GearWorldModel:
         """Load the VAE, its goal score (`goal_score` "image": the one of its camera; "latent": the one of its
-        latents) and the dynamics models of `controllers` (default: all)."""
+        latents), the dynamics models of `controllers` (default: all) and, with `predicates`, the predicate
+        classifiers."""
         if goal_score not in GOAL_SCORES:
             raise ValueError(f"goal_score must be one of {', '.join(GOAL_SCORES)}, not {goal_score!r}")
         root = Path(root)
@@ -90,7 +96,24 @@ class GearWorldModel:
         dynamics = {n: load_dynamics(folder / n, vae.config.latent_dim) for n in names}
         models = {n: made_with[folder / n].get("controller") for n in names}
         goal_model = load_goal_score(goal) if goal_score == "image" else load_latent_goal_score(goal)
-        return cls(vae, dynamics, goal_model, {n: m for n, m in models.items() if m})
+        return cls(vae, dynamics, goal_model, {n: m for n, m in models.items() if m},
+                   load_predicates(root) if predicates else None)
+
+    def senses(self, env, source: str) -> Senses:
+        """What the library's controllers perceive the predicates with: "learned" (this world model's classifiers) or
+        "oracle" (the simulator's truth)."""
+        if source == "oracle":
+            return OracleSenses(env)
+        if not self.predicates:
+            raise CheckpointError("this world model was loaded without its predicate classifiers; load it with "
+                                  "predicates=True (or compose with --senses oracle)")
+        return LearnedSenses(self.predicates)
+
+    def cameras(self, source: str) -> tuple[str, ...]:
+        """The cameras the selector and, with learned senses, the predicate classifiers read."""
+        learned = source == "learned"
+        return tuple(dict.fromkeys((self.camera, *(c for m in self.predicates.values() for c in m.config.cameras
+                                                   if learned))))
 
     def check_controllers(self, models: dict[str, str]) -> None:
         """Refuse controllers (their models by `weights_id`, see `library.model_ids`) other than those whose rollouts

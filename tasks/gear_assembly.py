@@ -14,6 +14,12 @@ peg's position and yaw), and small noise on the left arm's start configuration.
 **Success Conditions:** the gear seated on the peg (axes aligned within ``ALIGN_TOL_DEG``, the gear down at the base
 plate). ``evaluate`` also gives the subtask flags and an integer ``stage`` (0 pick, 1 move, 2 insert,
 3 done) used as labels by the datasets and by evaluation.
+
+**Sensed and privileged:** a robot senses its joints and gripper (``observation.state``), its hands' poses from them,
+the peg module from the right hand that holds it (``module_in_hand``, the hand-over's calibration) and the cameras.
+The gear's pose, ``evaluate``, ``predicates`` and the peg module's actor are the simulator's truth: for the scripted
+expert, the recordings' labels and the scorer. The planner's pick-up is given one of them, the gear's position on
+the table (``planner_gear_position``), with noise if asked.
 """
 
 from __future__ import annotations
@@ -44,6 +50,7 @@ from policy_composer.tasks.spec import (  # noqa: F401
     CAMERA_NAMES,
     ENV_ID,
     MAX_EPISODE_STEPS,
+    PREDICATES,
     START_STATES,
     STATE_NAMES,
 )
@@ -81,6 +88,12 @@ PRE_INSERT_HEIGHT = 0.06
 GRASP_OFFSET_MAX = 0.012  # gear centre off the fingers' centre, along the fingers, up to this (m)
 ARRIVAL_ERROR_MAX = (0.004, 0.010)  # a rough carry leaves the hand off the pre-insertion pose by up to (xy, +z) (m)
 CARRY_CLEARANCE = 0.03  # gear bottom above the peg top at the pre-insertion pose (m)
+# A gear in the hand and off the peg is off course when it tipped past INSERT_TILT_DEG or was led this far off the
+# peg's axis (m): past the pre-insertion tolerance and the farthest wrong guess of an insertion feeling for the hole
+# (12 mm the other way of a gear 12 mm off-centre), which lands it on the peg's top; below the top, nearer: a gear
+# pushed down beside the peg tips in the fingers and falls.
+OFF_COURSE_RADIUS = 0.03
+BESIDE_PEG_RADIUS = PRE_INSERT_RADIUS + 0.005
 CLOSE_STEPS = 6  # control steps the gripper takes to close on the gear (held still meanwhile)
 SETTLE_STEPS = 4  # then the grasp alone holds it
 
@@ -169,7 +182,7 @@ class GearAssemblyEnv(BaseEnv):
         # Peg module in the right TCP frame: flipped (TCP z points down) and shifted so the hand grips the
         # plate's end while the peg stands `peg_offset` beside the fingers.
         hz = self.gear_spec.plate_half_size[2]
-        self._tcp_to_module = Pose.create_from_pq(p=[self.gear_spec.peg_offset, 0.0, -hz], q=[0.0, 1.0, 0.0, 0.0],
+        self.module_in_hand = Pose.create_from_pq(p=[self.gear_spec.peg_offset, 0.0, -hz], q=[0.0, 1.0, 0.0, 0.0],
                                                   device=self.device)
 
     # ---------------------------------------------------------------- episodes
@@ -298,7 +311,7 @@ class GearAssemblyEnv(BaseEnv):
             self.scene._gpu_fetch_all()
 
     def _attach_peg_module(self):
-        self.peg_module.set_pose(self.agent.agents[1].tcp.pose * self._tcp_to_module)
+        self.peg_module.set_pose(self.agent.agents[1].tcp.pose * self.module_in_hand)
 
     def _after_simulation_step(self):
         self._physics_steps += 1  # the contacts PhysX reports change only here
@@ -415,6 +428,32 @@ class GearAssemblyEnv(BaseEnv):
         return dict(success=success, gear_grasped=grasped, gear_lifted=lifted, gear_at_peg=at_peg,
                     gear_inserted=inserted, gear_on_table=on_table, stage=stage, radial_offset=radial,
                     height_above_base=height)
+
+    def predicates(self) -> dict[str, torch.Tensor]:
+        """Each of PREDICATES from the simulator's truth, (B,) bool: the recordings' labels and the oracle's
+        perception (privileged: no controller of the library reads it)."""
+        info = self.evaluate()
+        grasped, lifted, inserted = info["gear_grasped"], info["gear_lifted"], info["gear_inserted"]
+        radial, height = info["radial_offset"], info["height_above_base"]
+        axis = self.gear.pose.to_transformation_matrix()[:, :3, 2]
+        level = axis[:, 2] > np.cos(np.deg2rad(INSERT_TILT_DEG))
+        centred = torch.linalg.norm((self.gear.pose.p - self.left_arm.tcp.pose.p)[:, :2], dim=-1) < PRE_INSERT_RADIUS
+        below_top = height < self.gear_spec.peg_height - 0.003
+        led_away = (radial > OFF_COURSE_RADIUS) | (below_top & (radial > BESIDE_PEG_RADIUS))
+        flags = dict(gear_on_table=(self.gear.pose.p[:, 2] < ON_TABLE_HEIGHT) & ~inserted, gear_grasped=grasped,
+                     gear_lifted=lifted, gear_held_level=lifted & level & centred, gear_at_peg=info["gear_at_peg"],
+                     gear_on_peg=inserted, gear_seated=info["success"], gear_lying_flat=info["gear_on_table"],
+                     gear_off_course=grasped & ~inserted & (~level | led_away))
+        return {name: flags[name] for name in PREDICATES}
+
+    def planner_gear_position(self, noise_m: float = 0.0, rng: np.random.Generator | None = None) -> np.ndarray:
+        """The gear's position (world, m) as the pick-up's planner is given it: the task's one privileged input to a
+        controller (the paper's planner was given the object poses), with Gaussian noise of `noise_m` per axis in
+        the table's plane."""
+        p = self.gear.pose.p[0].cpu().numpy().astype(np.float64)
+        if noise_m:
+            p[:2] += (rng or np.random.default_rng()).normal(0.0, noise_m, 2)
+        return p
 
     def _get_obs_extra(self, info: dict):
         obs = dict(state=self.joint_state(), tcp_pose=self.left_arm.tcp.pose.raw_pose)

@@ -37,6 +37,20 @@ SUBTASK_COLUMNS = ("pick", "move", "insert", "full")
 EXPERT_PHASES = ("approach", "descend", "close", "lift", "carry", "insert", "release", "retreat", "done")
 # The flags of GearAssemblyEnv.evaluate() that say how far the task went, in the order the task reaches them.
 GOAL_FLAGS = ("gear_grasped", "gear_lifted", "gear_at_peg", "success")
+# The predicates the controllers' initiation sets, terminations and guards are made of. The env computes each from
+# the simulator's truth (`GearAssemblyEnv.predicates`: privileged, for the recordings' labels and the oracle); a
+# robot has them from classifiers of its cameras and joints trained on those labels (selector/predicates.py).
+PREDICATES = {
+    "gear_on_table": "the gear is down on the table, in the fingers or not",
+    "gear_grasped": "the gear is between the left fingers",
+    "gear_lifted": "the gear is grasped and lifted off the table",
+    "gear_held_level": "the gear is lifted, upright in the fingers and near their centre (as the carry needs it)",
+    "gear_at_peg": "the gear is held above the peg at the pre-insertion pose",
+    "gear_on_peg": "the gear is on the peg, part-way down or seated",
+    "gear_seated": "the gear is seated on the peg (the task's success)",
+    "gear_lying_flat": "the gear lies flat on the table, out of the hand",
+    "gear_off_course": "the gear is in the hand and off the peg, tipped in the fingers or led away from the peg",
+}
 
 # What the task can be made with: the radial clearance the gear's hole leaves around the peg (below 0.5 mm the
 # gear jams, above 6 mm it tips over the peg), and square camera images.

@@ -54,7 +54,7 @@ def test_a_lerobot_checkpoint_gets_its_own_row_in_table_one(act_checkpoint, tmp_
     """`evaluate controllers --lerobot` adds a row named after the checkpoint's policy type, beside MP, DMP, CNN."""
     checkpoint, _ = act_checkpoint
     res = run_cli("evaluate", "controllers", "--kinds", "", "--lerobot", f"{checkpoint}:insert", "--trials", "1",
-                  "--resolution", "32", "--workers", "1", "--out", str(tmp_path))
+                  "--resolution", "32", "--workers", "1", "--senses", "oracle", "--out", str(tmp_path))
     assert res.returncode == 0, res.stderr[-2000:]
     table = (tmp_path / "controllers.md").read_text()
     row = next(line for line in table.splitlines() if line.startswith("| ACT (LeRobot) |"))

@@ -157,7 +157,8 @@ def test_a_model_is_what_its_files_say(tmp_path):
                                               r"describes the weights beside it"):
         load_cnn_policy(folder)
     line = one_line_error(run_cli("evaluate", "controllers", "--kinds", "CNN", "--subtasks", "insert", "--trials",
-                                  "1", "--resolution", "32", "--cnn", str(folder), "--workers", "1"))
+                                  "1", "--resolution", "32", "--cnn", str(folder), "--workers", "1",
+                                  "--senses", "oracle"))
     assert "says image_size 128 (trained with 32)" in line
 
 

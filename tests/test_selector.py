@@ -18,17 +18,25 @@ from policy_composer.data.frames import load_frames
 from policy_composer.learning.checkpoint import CheckpointError
 from policy_composer.policies.library import LibrarySources, build_library
 from policy_composer.selector.compose import Activation, ComposedEpisode, Eligibility, compose_episode
-from policy_composer.selector.configuration import ComposeConfig, DynamicsConfig, GoalScoreConfig, VAEConfig
+from policy_composer.selector.configuration import (
+    ComposeConfig,
+    DynamicsConfig,
+    GoalScoreConfig,
+    PredicateConfig,
+    VAEConfig,
+)
 from policy_composer.selector.dynamics import load_dynamics, prediction_error, train_dynamics, transition_pairs
 from policy_composer.selector.evaluate import evaluate_goal_scores
 from policy_composer.selector.goal_score import goal_score_metrics
-from policy_composer.selector.train import train_goal_scores, train_world_model
+from policy_composer.selector.train import train_goal_scores, train_predicate_models, train_world_model
 from policy_composer.selector.world_model import GearWorldModel
 
 SIZE = 32
 WORLD_CONFIGS = (VAEConfig(image_size=SIZE, latent_dim=8, epochs=8, batch_size=32),
                  DynamicsConfig(hidden_dim=64, num_mixtures=2, epochs=150, batch_size=32))
 GOAL_CONFIG = GoalScoreConfig(image_size=SIZE, hidden_dim=64, num_mixtures=4, epochs=40, batch_size=16, shift=2)
+PREDICATE_CONFIG = PredicateConfig(cameras=("head", "left_forearm"), image_size=SIZE, hidden_dim=32, epochs=2,
+                                   batch_size=32, shift=2)
 
 
 @pytest.fixture(scope="module")
@@ -38,6 +46,7 @@ def world(controller_rollouts, full_task_demos, tmp_path_factory):
     root = tmp_path_factory.mktemp("world")
     timings = train_world_model(controller_rollouts, full_task_demos, root, *WORLD_CONFIGS, progress=False)
     timings.update(train_goal_scores(full_task_demos, root, ("head", "left_forearm"), GOAL_CONFIG, progress=False))
+    train_predicate_models([controller_rollouts, full_task_demos], root, PREDICATE_CONFIG, progress=False)
     return root, timings
 
 
@@ -315,6 +324,120 @@ def test_a_composed_episode_runs_end_to_end(world):
     assert ComposedEpisode.from_dict(json.loads(json.dumps(result.to_dict()))) == result
 
 
+class TruthRead(AssertionError):
+    """The simulator's truth read where only what a robot senses may be."""
+
+
+class Seal:
+    """Turns reads of the env's truth into TruthRead while a controller or the selector runs (`sealed`). The env's own
+    step and the scorer read it unsealed; the pick-up planner's one privileged input stays readable."""
+
+    PRIVILEGED = ("evaluate", "predicates", "gear_in_peg_frame", "gear_offset_in_hand", "knock_gear_out")
+    ACTORS = ("gear", "peg_module")
+
+    def __init__(self, env):
+        self.depth, self.reads = 0, []
+        u = env.unwrapped
+        for name in self.PRIVILEGED:
+            setattr(u, name, self.guard(getattr(u, name), f"env.{name}()"))
+        for name in self.ACTORS:
+            setattr(u, name, Guarded(getattr(u, name), f"env.{name}", self))
+        u.planner_gear_position = self.opened(u.planner_gear_position)
+
+    def check(self, what: str) -> None:
+        if self.depth:
+            self.reads.append(what)
+            raise TruthRead(f"{what} was read while a controller or the selector ran")
+
+    def guard(self, fn, what):
+        def read(*args, **kwargs):
+            self.check(what)
+            return fn(*args, **kwargs)
+        return read
+
+    def sealed(self, fn):
+        def run(*args, **kwargs):
+            self.depth += 1
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                self.depth -= 1
+        return run
+
+    def opened(self, fn):
+        def run(*args, **kwargs):
+            depth, self.depth = self.depth, 0
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                self.depth = depth
+        return run
+
+    def seal(self, library: dict, world: GearWorldModel) -> None:
+        for controller in library.values():
+            for name in ("can_start", "start", "act", "done"):
+                setattr(controller, name, self.sealed(getattr(controller, name)))
+        for name in ("encode", "score", "score_observation"):
+            setattr(world, name, self.sealed(getattr(world, name)))
+
+
+class Guarded:
+    """An actor of the scene whose every attribute is truth."""
+
+    def __init__(self, actor, what: str, seal: Seal):
+        self.__dict__.update(_actor=actor, _what=what, _seal=seal)
+
+    def __getattr__(self, name):
+        self._seal.check(f"{self._what}.{name}")
+        return getattr(self._actor, name)
+
+
+def test_a_composed_episode_with_learned_senses_reads_no_truth(world):
+    """Controllers and the selector read only what a robot senses (cameras, joints, the hands' kinematics) while a
+    composed episode runs: the env's truth raises under them. The same library on the oracle's senses reads it at once,
+    so the guard does catch a read."""
+    model = GearWorldModel.load(world[0], predicates=True)
+    env = gym.make("GearAssembly-v1", obs_mode="rgb", cameras=model.cameras("learned"), camera_width=SIZE,
+                   camera_height=SIZE)
+    seal = Seal(env)
+    for source in ("learned", "oracle"):
+        library = build_library(env, ["mp_pick", "mp_insert"], LibrarySources(max_grasp_offset=0.0),
+                                model.senses(env, source))
+        seal.seal(library, model)
+        config = ComposeConfig(horizon=2, samples=2, max_steps=60, senses=source)
+        if source == "oracle":
+            with pytest.raises(TruthRead, match=r"env\.predicates\(\)"):
+                compose_episode(env, library, model, config, seed=0)
+            continue
+        result = compose_episode(env, library, model, config, seed=0)
+        assert result.decisions and result.activations and not seal.reads, seal.reads
+        assert "learned p=" in library["mp_pick"].describe(env.unwrapped.observe())
+    env.close()
+
+
+def test_each_predicate_is_judged_on_held_out_episodes(world, controller_rollouts, full_task_demos):
+    """Every predicate's classifier is trained apart from the held-out episodes and logs its figures there, and the
+    logged figures are what the saved model gives on those frames."""
+    from policy_composer.selector.predicates import held_out, load_predicates, predicate_metrics, stacked
+    from policy_composer.tasks.spec import PREDICATES
+
+    models = load_predicates(world[0])
+    assert set(models) == set(PREDICATES)
+    frames = [load_frames(d, PREDICATE_CONFIG.cameras, SIZE, progress=False)
+              for d in (controller_rollouts, full_task_demos)]
+    test = torch.cat([held_out(f["episode_index"]) for f in frames])
+    images = stacked({k: torch.cat([f[k] for f in frames]) for k in frames[0] if k.startswith("observation.images")},
+                     PREDICATE_CONFIG.cameras)
+    state, labels = torch.cat([f["observation.state"] for f in frames]), torch.cat([f["predicates"] for f in frames])
+    assert 0 < int(test.sum()) < len(test)
+    for column, (name, model) in enumerate(models.items()):
+        log = json.loads((world[0] / "predicates" / name / "train_log.json").read_text())
+        assert log["frames"] == int((~test).sum()) and log["held_out"]["frames"] == int(test.sum())
+        again = predicate_metrics(model.probability(images[test], state[test]), labels[test, column])
+        assert again == pytest.approx(log["held_out"], abs=1e-6), name
+    assert labels[:, list(PREDICATES).index("gear_seated")].any()  # the demonstrations end seated
+
+
 class Toward:
     """A dynamics model whose every step lands on one latent state: the prediction of a controller that leads there."""
 
@@ -353,7 +476,7 @@ def test_the_controller_the_selector_chooses_is_the_one_that_runs(world, full_ta
 
 
 def test_knock_out_puts_the_gear_back_on_the_table(state_env):
-    from policy_composer.policies.arm import SceneGeometry
+    from policy_composer.policies.senses import OracleSenses
     from policy_composer.policies.subtasks import SUBTASKS
     from policy_composer.tasks.gear_expert import GearAssemblyExpert
 
@@ -369,7 +492,7 @@ def test_knock_out_puts_the_gear_back_on_the_table(state_env):
     assert u.knocked_out and expert.phase in ("lift", "carry")  # knocked out as soon as it was lifted
     for _ in range(10):  # let it settle
         obs, *_ = env.step(u.flat_to_dict_action(u.hold_action()[0]))
-    assert SUBTASKS["pick"].can_start(SceneGeometry(env))  # the pick-up may start again
+    assert SUBTASKS["pick"].can_start(OracleSenses(env)(obs))  # the pick-up may start again
     env.close()
 
 

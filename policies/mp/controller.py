@@ -40,7 +40,7 @@ class MotionPlanningController(SubtaskController):
 
     def connect(self, obs, waypoints: list[Waypoint], seed):
         finger = float(np0(obs["extra"]["state"])[7] / 2)
-        module = self.env.peg_module.pose
+        module = self.scene.module_pose()
         self.collision.set_scene(np0(self.env.right_arm.robot.get_qpos()), sapien.Pose(np0(module.p), np0(module.q)),
                                  self.scene.spec, held=self.nominal_held_gear() if self.subtask.holds_gear else None,
                                  fingers=finger)

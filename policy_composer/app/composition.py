@@ -106,11 +106,12 @@ class Composer:
         from policy_composer.tasks.rollout import make_env
 
         # given: loaded in this process
-        self.world = world if world is not None else GearWorldModel.load(models, goal_score=goal_score)
+        self.world = world if world is not None else GearWorldModel.load(models, goal_score=goal_score,
+                                                                         predicates=config.senses == "learned")
         names = list(self.world.dynamics)
-        cameras = tuple(dict.fromkeys((self.world.camera, *cameras_needed(names, sources))))
+        cameras = tuple(dict.fromkeys((*self.world.cameras(config.senses), *cameras_needed(names, sources))))
         self.env = make_env("rgb", resolution, clearance_mm, cameras, knock_out_step=knock_out_step)
-        self.library = build_library(self.env, names, sources)
+        self.library = build_library(self.env, names, sources, self.world.senses(self.env, config.senses))
         self.config, self.out, self.video_seeds = config, out, video_seeds
 
     def __call__(self, seed: int) -> ComposedEpisode:
@@ -148,7 +149,7 @@ def compose_library(models: str | Path, sources, config: ComposeConfig, seeds: l
     with one_writer(out):  # a second run into it stops at once
         check_out(out, resume)  # first: a finished run in `out` is refused before anything loads
         torch.set_num_threads(1)
-        world = GearWorldModel.load(models, goal_score=goal_score)
+        world = GearWorldModel.load(models, goal_score=goal_score, predicates=config.senses == "learned")
         check_models(list(world.dynamics), sources)
         ids = model_ids(list(world.dynamics), sources)
         world.check_controllers(ids)
@@ -297,11 +298,18 @@ def served_table(episodes: list[ComposedEpisode]) -> list[str]:
         f"| {subtask} | {listed(done)} | {listed(other)} |" for subtask, (done, other) in served.items()]
 
 
+SENSED = {"learned": "The controllers' initiation sets, terminations and guards read the predicate classifiers "
+                     "(cameras and joints): what a robot senses.",
+          "oracle": "The controllers' initiation sets, terminations and guards read the simulator's truth (the "
+                    "oracle): privileged, for comparison."}
+
+
 def summary(episodes: list[ComposedEpisode], config: ComposeConfig) -> str:
     n, ok = len(episodes), sum(e.success for e in episodes)
     lines = ["# Composed controllers (the selector over the whole library)", "",
              f"Horizon n = {config.horizon}, K = {config.samples} samples per controller, decisions at termination"
-             + (f" and every {config.reselect_every} steps" if config.reselect_every else "") + ".", "",
+             + (f" and every {config.reselect_every} steps" if config.reselect_every else "") + ". "
+             + SENSED[config.senses], "",
              "| | full task | progressive completion | paper |", "|---|---|---|---|",
              f"| composed | {rate(ok, n)} | {progressive([e.reached for e in episodes])} | {PAPER_COMPOSED} |", ""]
     knocked = [e for e in episodes if e.knocked_out]

@@ -18,7 +18,9 @@ from pathlib import Path
 from policy_composer.app.stats import rate
 from policy_composer.data import atomic
 from policy_composer.policies.arm import Outcome, run_activation
+from policy_composer.policies.senses import OracleSenses
 from policy_composer.policies.subtasks import TASK_SEQUENCE
+from policy_composer.selector.predicates import LearnedSenses, load_predicates
 from policy_composer.tasks.spec import SUBTASK_COLUMNS
 
 SEQUENCES = {"pick": ("pick",), "move": ("move",), "insert": ("insert",), "full": TASK_SEQUENCE}
@@ -48,7 +50,6 @@ def start_state(env, seed: int, subtask: str, max_steps: int = 300):
 
     That state may still fall outside the subtask's initiation set (a gear tilted in the grasp, or too far off the
     peg); such a seed is replaced by seed + 1000 (up to five times), so every trial starts where the subtask may."""
-    from policy_composer.policies.arm import SceneGeometry
     from policy_composer.policies.subtasks import SUBTASKS
 
     if subtask in ("pick", "full"):
@@ -58,7 +59,7 @@ def start_state(env, seed: int, subtask: str, max_steps: int = 300):
             obs = env.reset(seed=seed + 1000 * k, options={"start": "pre_insertion"})[0]
         else:
             obs = _expert_until(env, seed + 1000 * k, subtask, max_steps)
-        if obs is not None and SUBTASKS[subtask].can_start(SceneGeometry(env)):
+        if obs is not None and SUBTASKS[subtask].can_start(OracleSenses(env)(obs)):
             return obs
     raise RuntimeError(f"no valid {subtask} start state from seed {seed} (tried five)")
 
@@ -97,6 +98,7 @@ def run_trial(env, controllers: dict[str, object], column: str, seed: int) -> Tr
     from policy_composer.policies.base import InitiationError
 
     sequence = SEQUENCES[column]
+    truth = OracleSenses(env)
     obs = start_state(env, seed, column)
     outcome, why, done = Outcome.DONE, "", 0
     for s in sequence:
@@ -107,6 +109,9 @@ def run_trial(env, controllers: dict[str, object], column: str, seed: int) -> Tr
             outcome, why = Outcome.FAILED, str(e)
             break
         outcome, why = c.outcome, c.reason
+        truly, not_so = c.subtask.succeeded(truth(obs))
+        if outcome is Outcome.DONE and not truly:  # the controller's senses said done; the scorer reads the truth
+            outcome, why = Outcome.FAILED, f"it terminated as done, but {not_so}"
         if outcome is not Outcome.DONE:
             break
         done += 1
@@ -119,8 +124,10 @@ class TrialRunner:
     """Table I trials in one process: each row's env (with the cameras its controllers read) and controllers, built
     when its first trial comes. Called with (row, column, seed)."""
 
-    def __init__(self, rows: dict[str, tuple[str, ...]], sources, resolution: int = 128, clearance_mm: float = 2.0):
+    def __init__(self, rows: dict[str, tuple[str, ...]], sources, resolution: int = 128, clearance_mm: float = 2.0,
+                 predicates: str | Path | None = None):
         self.rows, self.sources, self.resolution, self.clearance_mm = rows, sources, resolution, clearance_mm
+        self.senses = LearnedSenses(load_predicates(predicates)) if predicates is not None else None
         self.built: dict[str, tuple] = {}
 
     def __call__(self, item: tuple[str, str, int]) -> Trial:
@@ -129,9 +136,10 @@ class TrialRunner:
 
         row, column, seed = item
         if row not in self.built:
-            cameras = cameras_needed(self.rows[row], self.sources)
+            cameras = tuple(dict.fromkeys((*cameras_needed(self.rows[row], self.sources),
+                                           *(self.senses.cameras if self.senses else ()))))
             env = make_env("rgb" if cameras else "state_dict", self.resolution, self.clearance_mm, cameras or None)
-            library = build_library(env, self.rows[row], self.sources)
+            library = build_library(env, self.rows[row], self.sources, self.senses)
             self.built[row] = env, {c.subtask.name: c for c in library.values()}
         return run_trial(*self.built[row], column, seed)
 
@@ -143,10 +151,12 @@ class TrialRunner:
 def evaluate_rows(rows: dict[str, tuple[str, ...]], sources, trials: int, first_seed: int = 0,
                   resolution: int = 128, clearance_mm: float = 2.0, progress: bool = True,
                   workers: int = 1, columns: tuple[str, ...] = SUBTASK_COLUMNS,
-                  column_trials: dict[str, int] | None = None) -> dict[str, dict[str, Cell]]:
+                  column_trials: dict[str, int] | None = None,
+                  predicates: str | Path | None = None) -> dict[str, dict[str, Cell]]:
     """Rows of Table I: each row's named controllers (one per subtask) on each of `columns` they cover, `trials`
     seeds from `first_seed` each (or the column's own number in `column_trials`), the trials spread over `workers`
-    processes."""
+    processes. The controllers sense the predicates with the classifiers of the world model in `predicates`, or
+    (None) with the simulator's truth; the trials are judged on the truth either way."""
     import torch
     from tqdm import tqdm
 
@@ -161,7 +171,7 @@ def evaluate_rows(rows: dict[str, tuple[str, ...]], sources, trials: int, first_
         subtasks = {subtask_of(n, sources) for n in names}
         items += [(row, column, seed) for column in columns if set(SEQUENCES[column]) <= subtasks
                   for seed in range(first_seed, first_seed + (column_trials or {}).get(column, trials))]
-    setup = partial(TrialRunner, rows, sources, resolution, clearance_mm)
+    setup = partial(TrialRunner, rows, sources, resolution, clearance_mm, predicates)
     with tqdm(total=len(items), desc=" and ".join(rows), unit="trial", disable=not progress) as bar:
         results = run_episodes(setup, items, workers, lambda *_: bar.update())
     table = {row: {c: Cell() for c in SUBTASK_COLUMNS} for row in rows}
@@ -186,8 +196,8 @@ def evaluate_controllers(names, sources, trials: int, first_seed: int = 0, resol
 
 def evaluate_table(kinds: list[str], sources, trials: int, first_seed: int = 0, resolution: int = 128,
                    clearance_mm: float = 2.0, progress: bool = True, workers: int = 1,
-                   columns: tuple[str, ...] = SUBTASK_COLUMNS,
-                   column_trials: dict[str, int] | None = None) -> dict[str, dict[str, Cell]]:
+                   columns: tuple[str, ...] = SUBTASK_COLUMNS, column_trials: dict[str, int] | None = None,
+                   predicates: str | Path | None = None) -> dict[str, dict[str, Cell]]:
     """Rows of Table I: one for each of `kinds` (MP, DMP, CNN), then one for each LeRobot checkpoint in `sources`."""
     from policy_composer.policies.lerobot_policy.controller import lerobot_label
     from policy_composer.policies.library import names_of_kind
@@ -195,7 +205,7 @@ def evaluate_table(kinds: list[str], sources, trials: int, first_seed: int = 0, 
     rows = {kind: names_of_kind(kind) for kind in kinds}
     rows.update({lerobot_label(s.path): (s.controller_name,) for s in sources.lerobot})
     return evaluate_rows(rows, sources, trials, first_seed, resolution, clearance_mm, progress, workers, columns,
-                         column_trials)
+                         column_trials, predicates)
 
 
 def table_row(kind: str, row: dict[str, Cell]) -> str:

@@ -11,7 +11,7 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from policy_composer.tasks.spec import ACTION_NAMES, CAMERA_NAMES, STATE_NAMES
+from policy_composer.tasks.spec import ACTION_NAMES, CAMERA_NAMES, PREDICATES, STATE_NAMES
 
 if TYPE_CHECKING:  # pyarrow is imported where a dataset is read
     import pyarrow as pa
@@ -27,7 +27,7 @@ def image_key(camera: str) -> str:
 
 # Bump when dataset_features changes: the main job's recording stages key on it, so no recording without a column
 # the models need is reused.
-FEATURES_REVISION = 2
+FEATURES_REVISION = 3
 
 
 def dataset_features(cameras: tuple[str, ...] = CAMERA_NAMES, resolution: int = 128) -> dict[str, dict]:
@@ -48,6 +48,8 @@ def dataset_features(cameras: tuple[str, ...] = CAMERA_NAMES, resolution: int = 
         "stage": {"dtype": "int64", "shape": (1,), "names": None},
         # GearAssemblyEnv.gear_offset_in_hand() of the observed state (m): a privileged label, never a policy's input.
         "gear_offset": {"dtype": "float32", "shape": (3,), "names": ["x", "y", "z"]},
+        # GearAssemblyEnv.predicates() of the observed state, 0 or 1 each: the predicate classifiers' labels.
+        "predicates": {"dtype": "float32", "shape": (len(PREDICATES),), "names": list(PREDICATES)},
         # Index into the sidecar's "controllers" list: which controller produced this frame's action.
         "controller": {"dtype": "int64", "shape": (1,), "names": None},
         "next.success": {"dtype": "bool", "shape": (1,), "names": None},

@@ -14,8 +14,8 @@ import torch.nn.functional as F
 
 from policy_composer.data.features import image_key, open_dataset
 
-LABELS = ("observation.state", "action", "progress", "stage", "gear_offset", "controller", "episode_index",
-          "frame_index")
+LABELS = ("observation.state", "action", "progress", "stage", "gear_offset", "predicates", "controller",
+          "episode_index", "frame_index")
 
 
 def to_model_image(rgb: torch.Tensor, size: int, window: tuple[float, float, float] | None = None) -> torch.Tensor:

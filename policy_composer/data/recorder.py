@@ -58,8 +58,11 @@ def _flat(action, env) -> np.ndarray:
     return torch.as_tensor(action, dtype=torch.float32).reshape(-1).cpu().numpy()
 
 
-def _gear_offset(env) -> np.ndarray:
-    return env.gear_offset_in_hand()[0].cpu().numpy().astype(np.float32)
+def _labels(env) -> tuple[int, np.ndarray, np.ndarray]:
+    """The privileged labels of the scene now: its stage, the gear's offset in the hand and the predicates."""
+    stage = int(env.evaluate()["stage"][0])
+    flags = np.array([float(v[0]) for v in env.predicates().values()], dtype=np.float32)
+    return stage, env.gear_offset_in_hand()[0].cpu().numpy().astype(np.float32), flags
 
 
 class FrameBuffer(gym.Wrapper):
@@ -99,9 +102,8 @@ class FrameBuffer(gym.Wrapper):
         return self._starting_from(self.env.unwrapped.observe())
 
     def _starting_from(self, obs):
-        """`obs` is the state the next frame records, with the scene's stage and gear offset there."""
-        u = self.env.unwrapped
-        self._obs, self._stage, self._offset = obs, int(u.evaluate()["stage"][0]), _gear_offset(u)
+        """`obs` is the state the next frame records, with the scene's labels there."""
+        self._obs, self._labels = obs, _labels(self.env.unwrapped)
         return obs
 
     def step(self, action, label=None):
@@ -117,13 +119,13 @@ class FrameBuffer(gym.Wrapper):
                 **{image_key(c): prev["sensor_data"][c]["rgb"][0].cpu().numpy() for c in self.cameras},
                 "observation.state": prev["extra"]["state"][0].cpu().numpy().astype(np.float32),
                 "action": (flat if label is None else _flat(label, u)).astype(np.float32),
-                "stage": np.array([self._stage], dtype=np.int64),
-                "gear_offset": self._offset,
+                "stage": np.array([self._labels[0]], dtype=np.int64),
+                "gear_offset": self._labels[1],
+                "predicates": self._labels[2],
                 "controller": self.controller,  # its index in the dataset's list, when written
                 "next.success": np.array([bool(info["success"][0])]),
             })
-        self._obs = obs
-        self._stage, self._offset = int(info["stage"][0]), _gear_offset(u)
+        self._obs, self._labels = obs, _labels(u)
         return obs, reward, terminated, truncated, info
 
     @property

@@ -25,8 +25,9 @@ class SpatialSoftmax(nn.Module):
         return torch.cat([(attention.sum(2) * xs).sum(-1), (attention.sum(3) * ys).sum(-1)], dim=-1)
 
 
-def image_encoder(backbone: str, out_dim: int) -> nn.Module:
-    """Images (B, 3, H, W) in [0, 1] -> features (B, out_dim).
+def image_encoder(backbone: str, out_dim: int, in_channels: int = 3) -> nn.Module:
+    """Images (B, in_channels, H, W) in [0, 1] -> features (B, out_dim); `in_channels` > 3 for several cameras'
+    images stacked ("small" only).
 
     "spatial": four convolutions and a spatial softmax (keypoint coordinates), for policies that must place
     things precisely; "small": four strided convolutions pooled to 2x2, for global judgements (the goal score);
@@ -45,8 +46,10 @@ def image_encoder(backbone: str, out_dim: int) -> nn.Module:
             nn.Conv2d(64, 32, 3, stride=1, padding=1),
             SpatialSoftmax(), nn.Linear(64, out_dim), nn.ReLU(),
         )
+    if in_channels != 3 and backbone != "small":
+        raise ValueError(f"the {backbone} encoder reads 3 channels; stacked cameras need the small one")
     return nn.Sequential(
-        nn.Conv2d(3, 32, 5, stride=2, padding=2), nn.ReLU(),
+        nn.Conv2d(in_channels, 32, 5, stride=2, padding=2), nn.ReLU(),
         nn.Conv2d(32, 64, 3, stride=2, padding=1), nn.ReLU(),
         nn.Conv2d(64, 64, 3, stride=2, padding=1), nn.ReLU(),
         nn.Conv2d(64, 128, 3, stride=2, padding=1), nn.ReLU(),

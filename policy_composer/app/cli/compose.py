@@ -56,7 +56,7 @@ def add_commands(sub) -> None:
     model_options(compose)
     add_config_options(compose, ComposeConfig, {"horizon": "horizon", "samples": "samples",
                                                 "reselect_every": "reselect-every", "max_failures": "max-failures",
-                                                "episode_failures": "episode-failures"})
+                                                "episode_failures": "episode-failures", "senses": "senses"})
     compose.add_argument("--knock-out-step", type=at_least(0), default=None,
                          help="perturbation: knock the gear out of the gripper at this control step "
                               "(or when next lifted)")

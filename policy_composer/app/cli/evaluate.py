@@ -19,6 +19,7 @@ from policy_composer.app.cli.options import (
     workers_option,
 )
 from policy_composer.policies.registry import kinds
+from policy_composer.selector.configuration import SENSES
 from policy_composer.tasks.spec import CAMERA_NAMES, SUBTASK_COLUMNS
 
 
@@ -51,7 +52,7 @@ def cmd_evaluate_controllers(args: argparse.Namespace) -> int:
 
     rows = evaluate_table([k for k in args.kinds.split(",") if k], library_sources(args), args.trials, args.seed,
                           args.resolution, args.clearance, workers=episode_workers(args),
-                          columns=args.subtasks)
+                          columns=args.subtasks, predicates=args.models if args.senses == "learned" else None)
     for kind, row in rows.items():
         print(f"{kind}: " + ", ".join(f"{c} {cell}" for c, cell in row.items()))
     print(f"table: {write_table(rows, Path(args.out))}")
@@ -88,6 +89,11 @@ def add_commands(sub) -> None:
     ev_ctrl.add_argument("--subtasks", type=subset_of(SUBTASK_COLUMNS), default=SUBTASK_COLUMNS,
                          help=f"comma-separated columns to run (default: all, {','.join(SUBTASK_COLUMNS)})")
     model_options(ev_ctrl)
+    ev_ctrl.add_argument("--senses", choices=SENSES, default="learned",
+                         help="where the controllers have the task's predicates from: the classifiers in --models "
+                              "(default), or the simulator's truth (the oracle)")
+    ev_ctrl.add_argument("--models", default=WORLD, help="the world-model folder whose predicate classifiers the "
+                         "controllers sense with (--senses learned)")
     ev_ctrl.add_argument("--out", default="results/controllers")
     workers_option(ev_ctrl)
     ev_ctrl.set_defaults(func=cmd_evaluate_controllers)

@@ -30,6 +30,7 @@ def library_sources(args: argparse.Namespace) -> LibrarySources:
     return LibrarySources(models={k.name: getattr(args, k.name) for k in kinds().values() if k.trained},
                           lerobot=lerobot,
                           max_grasp_offset=getattr(args, "grasp_offset", DEFAULT_GRASP_OFFSET_MM) / 1000.0,
+                          gear_noise=getattr(args, "gear_noise", 0.0) / 1000.0,
                           insertion=getattr(args, "insertion", LibrarySources.insertion))
 
 
@@ -115,6 +116,9 @@ def env_options(p: argparse.ArgumentParser, grasp: bool = True) -> None:
     if grasp:
         p.add_argument("--grasp-offset", type=between(*GRASP_OFFSET_MM, " mm"), default=DEFAULT_GRASP_OFFSET_MM,
                        help="max grasp offset of the gear in the gripper, mm")
+        p.add_argument("--gear-noise", type=between(0.0, 50.0, " mm"), default=0.0,
+                       help="noise (standard deviation per axis in the table's plane, mm) on the gear position the "
+                            "pick-up's planner is given, its one input from the simulator")
     p.add_argument("--seed", type=at_least(0), default=0, help="first seed")
 
 

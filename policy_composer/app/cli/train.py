@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import replace
 
 from policy_composer.app.arguments import add_config_options, at_least, config_from, names
 from policy_composer.app.cli.options import WORLD, dataset_path, env_options, make_env, training_threads
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 from policy_composer.policies.dmp.configuration_dmp import FIT_EPISODES, FIT_FIRST_SEED
 from policy_composer.policies.library import MODELS
-from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
+from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, PredicateConfig, VAEConfig
 from policy_composer.tasks.spec import CAMERA_NAMES
 
 
@@ -70,6 +71,17 @@ def cmd_train_goal_score(args: argparse.Namespace) -> int:
         print(f"trained {what} in {seconds:.0f} s")
     return 0
 
+def cmd_train_predicates(args: argparse.Namespace) -> int:
+    """One classifier per task predicate on the labelled recordings: what the controllers sense."""
+    from policy_composer.selector.train import train_predicate_models
+
+    training_threads(args.threads)
+    config = replace(config_from(args, PredicateConfig), cameras=args.cameras)
+    for name, figures in train_predicate_models(args.dataset, args.out, config).items():
+        print(f"trained predicate {name} in {figures['seconds']:.0f} s: held-out accuracy {figures['accuracy']:.3f}, "
+              f"false positives {figures['false_positive_rate']:.3f} ({figures['frames']} frames, "
+              f"{figures['positives']} positive)")
+    return 0
 
 
 def add_commands(sub) -> None:
@@ -116,3 +128,13 @@ def add_commands(sub) -> None:
     tr_goal.add_argument("--threads", type=at_least(1), default=2)
     tr_goal.add_argument("--out", default=WORLD, help="the world-model folder (its VAE, if any, is used)")
     tr_goal.set_defaults(func=cmd_train_goal_score)
+    tr_pred = tr_sub.add_parser("predicates", help="one classifier per task predicate (gear grasped, on the peg, "
+                                "seated, ...): what the controllers sense")
+    tr_pred.add_argument("--dataset", nargs="+",
+                         default=[dataset_path("gear-controller-rollouts"), dataset_path("gear-full-task-demos")],
+                         help="labelled recordings (default: the controller rollouts and the full-task demos)")
+    tr_pred.add_argument("--cameras", type=names, default=",".join(PredicateConfig.cameras))
+    add_config_options(tr_pred, PredicateConfig, {"epochs": "epochs", "image_size": "image-size", "seed": "seed"})
+    tr_pred.add_argument("--threads", type=at_least(1), default=2)
+    tr_pred.add_argument("--out", default=WORLD, help="the world-model folder")
+    tr_pred.set_defaults(func=cmd_train_predicates)

@@ -1,0 +1,172 @@
+"""The task's predicates as a robot has them: one binary classifier per predicate of the cameras it sees and the
+joint state, trained on the labels the recordings keep from the simulator (see tasks/spec.py PREDICATES), judged on
+held-out episodes, and used by the library's controllers for their initiation sets, terminations and guards
+(`LearnedSenses`). They live in the world model's folder beside the goal scores:
+
+    ROOT/predicates/<predicate>   config.json + model.safetensors + train_log.json (its held-out figures)
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from policy_composer.data.features import image_key
+from policy_composer.data.frames import random_shift, to_model_image
+from policy_composer.learning.checkpoint import CheckpointError, check_out, finished, load_checkpoint, save_checkpoint
+from policy_composer.learning.layers import image_encoder
+from policy_composer.learning.training import adam, fit_epochs
+from policy_composer.policies.senses import THRESHOLD, CachedSenses, Percept
+from policy_composer.selector.configuration import PredicateConfig
+from policy_composer.tasks.spec import PREDICATES, STATE_NAMES
+
+TRAIN_HINT = "policy-composer train predicates"
+HELD_OUT_EVERY = 5  # every fifth episode of each dataset is held out of the training, for the figures
+
+
+class PredicateModel(nn.Module):
+    """P(predicate | the cameras' images, the joint state): the images stacked as channels through a small CNN, the
+    standardised state through a linear layer, both into a logit."""
+
+    def __init__(self, config: PredicateConfig):
+        super().__init__()
+        self.config = config
+        self.encoder = image_encoder("small", config.hidden_dim, in_channels=3 * len(config.cameras))
+        self.state = nn.Sequential(nn.Linear(len(STATE_NAMES), config.hidden_dim), nn.ReLU())
+        self.head = nn.Sequential(nn.Linear(2 * config.hidden_dim, config.hidden_dim), nn.ReLU(),
+                                  nn.Linear(config.hidden_dim, 1))
+        self.register_buffer("state_mean", torch.zeros(len(STATE_NAMES)))
+        self.register_buffer("state_std", torch.ones(len(STATE_NAMES)))
+
+    def forward(self, images: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
+        """Logits (B,) of images (B, 3C, S, S) in [0, 1] and states (B, 16)."""
+        features = torch.cat([self.encoder(images), self.state((state - self.state_mean) / self.state_std)], -1)
+        return self.head(features)[:, 0]
+
+    @torch.no_grad()
+    def probability(self, images: torch.Tensor, state: torch.Tensor, batch: int = 512) -> torch.Tensor:
+        """P for uint8 images (B, 3C, S, S) and states (B, 16)."""
+        return torch.cat([torch.sigmoid(self(images[i:i + batch].float() / 255.0, state[i:i + batch].float()))
+                          for i in range(0, len(images), batch)])
+
+
+def stacked(frames: dict[str, torch.Tensor], cameras: tuple[str, ...]) -> torch.Tensor:
+    """The cameras' uint8 images of each frame as one (N, 3C, S, S) tensor."""
+    return torch.cat([frames[image_key(c)] for c in cameras], dim=1)
+
+
+def held_out(episode_index: torch.Tensor) -> torch.Tensor:
+    """(N,) bool: the frames of one dataset's every HELD_OUT_EVERY-th episode (the 5th, 10th, ...), or of its last
+    where it has fewer."""
+    last = int(episode_index.max())
+    if last < HELD_OUT_EVERY - 1:
+        return episode_index == last
+    return episode_index % HELD_OUT_EVERY == HELD_OUT_EVERY - 1
+
+
+def train_predicate(images: torch.Tensor, state: torch.Tensor, labels: torch.Tensor, config: PredicateConfig,
+                    progress: bool = True) -> tuple[PredicateModel, list[float]]:
+    """Fit one predicate's classifier to uint8 images (N, 3C, S, S), states (N, 16) and 0/1 labels (N,)."""
+    torch.manual_seed(config.seed)
+    model = PredicateModel(config)
+    model.state_mean.copy_(state.float().mean(0))
+    model.state_std.copy_(state.float().std(0).clamp_min(1e-3))
+    opt = adam(model, config)
+    gen = torch.Generator().manual_seed(config.seed)
+    target = labels.float()
+    losses = fit_epochs(model, opt, len(images), config.batch_size, config.epochs,
+                        lambda idx: F.binary_cross_entropy_with_logits(
+                            model(random_shift(images[idx].float() / 255.0, config.shift, gen), state[idx].float()),
+                            target[idx]),
+                        gen, f"training predicate {config.predicate}", progress, postfix="bce")
+    return model, losses
+
+
+def predicate_metrics(probability: torch.Tensor, labels: torch.Tensor) -> dict:
+    """Accuracy, false-positive and false-negative rates of P >= THRESHOLD against 0/1 labels."""
+    said, truth = probability >= THRESHOLD, labels.bool()
+    negatives, positives = int((~truth).sum()), int(truth.sum())
+    return {"frames": len(labels), "positives": positives, "accuracy": float((said == truth).float().mean()),
+            "false_positive_rate": float((said & ~truth).sum() / negatives) if negatives else 0.0,
+            "false_negative_rate": float((~said & truth).sum() / positives) if positives else 0.0}
+
+
+def train_predicates(frames: dict[str, torch.Tensor], out: str | Path, config: PredicateConfig | None = None,
+                     predicates: tuple[str, ...] = tuple(PREDICATES), progress: bool = True,
+                     resume: bool = False) -> dict[str, dict]:
+    """One classifier per predicate on `frames` (`load_frames` of the labelled recordings, with the config's cameras,
+    "observation.state", "predicates" and "held_out", the frames of `held_out` episodes), each judged on the held-out
+    frames; returns each one's held-out figures and training time."""
+    config = config or PredicateConfig()
+    out = Path(out)
+    for name in predicates:
+        check_out(out / "predicates" / name, PredicateConfig)
+    images, state, labels = stacked(frames, config.cameras), frames["observation.state"], frames["predicates"]
+    test = frames["held_out"]
+    if test.all():
+        raise ValueError("the predicates need episodes to train on besides the held-out ones; record more episodes")
+    results = {}
+    for name in predicates:
+        column = list(PREDICATES).index(name)
+        path, predicate_config = out / "predicates" / name, replace(config, predicate=name)
+        if resume and (log := finished(path, predicate_config)):
+            results[name] = {**log.get("held_out", {}), "seconds": log["seconds"]}
+            continue
+        t0 = time.perf_counter()
+        model, losses = train_predicate(images[~test], state[~test], labels[~test, column], predicate_config,
+                                        progress)
+        figures = predicate_metrics(model.probability(images[test], state[test]), labels[test, column])
+        seconds = round(time.perf_counter() - t0, 1)
+        save_checkpoint(model, predicate_config, path, {"frames": int((~test).sum()), "losses": losses,
+                                                        "held_out": figures, "seconds": seconds})
+        results[name] = {**figures, "seconds": seconds}
+    return results
+
+
+def load_predicate(path: str | Path) -> PredicateModel:
+    return load_checkpoint(path, PredicateConfig, PredicateModel, "predicate classifier", TRAIN_HINT)
+
+
+def load_predicates(root: str | Path) -> dict[str, PredicateModel]:
+    """Every predicate's classifier in `root`/predicates, or a CheckpointError naming what is missing."""
+    folder = Path(root) / "predicates"
+    missing = [n for n in PREDICATES if not (folder / n / "config.json").is_file()]
+    if missing:
+        raise CheckpointError(f"{folder} has no classifier for {', '.join(missing)}: the controllers cannot sense "
+                              f"them; train them with `{TRAIN_HINT}` (or compose with --senses oracle)")
+    models = {n: load_predicate(folder / n) for n in PREDICATES}
+    sizes = {m.config.image_size for m in models.values()}
+    if len(sizes) > 1:
+        raise CheckpointError(f"the predicate classifiers in {folder} read images of different sizes {sorted(sizes)}; "
+                              f"train them again together with `{TRAIN_HINT}`")
+    return models
+
+
+class LearnedSenses(CachedSenses):
+    """The predicates from the classifiers: each observation's cameras and joint state, as a robot senses them."""
+
+    source = "learned"
+
+    def __init__(self, models: dict[str, PredicateModel]):
+        super().__init__()
+        self.models = models
+        self.cameras = tuple(dict.fromkeys(c for m in models.values() for c in m.config.cameras))
+        self.size = next(iter(models.values())).config.image_size
+
+    @torch.no_grad()
+    def perceive(self, obs) -> Percept:
+        sensors = obs.get("sensor_data", {})
+        missing = [c for c in self.cameras if c not in sensors]
+        if missing:
+            raise ValueError(f"the predicate classifiers read cameras {missing}; make the env with them "
+                             f"(and obs_mode='rgb')")
+        images = {c: to_model_image(sensors[c]["rgb"][:1].cpu(), self.size) for c in self.cameras}
+        state = obs["extra"]["state"][:1].cpu().float()
+        return Percept({name: float(torch.sigmoid(model(torch.cat([images[c] for c in model.config.cameras], 1),
+                                                        state))[0])
+                        for name, model in self.models.items()}, self.source)
