@@ -101,6 +101,17 @@ def gear_whereabouts(info: dict) -> str:
     return "out of the hand"
 
 
+def sensed(library: dict[str, Controller], obs) -> dict:
+    """What the library's controllers sensed when the selector decided (their initiation sets' predicates), for the
+    decision log: {"sensed": {predicate: probability}, "senses": "learned" or "oracle"} ({} for controllers without
+    senses)."""
+    senses = next((c.senses for c in library.values() if getattr(c, "senses", None) is not None), None)
+    if senses is None:
+        return {}
+    percept = senses(obs)
+    return {"sensed": {k: round(p, 3) for k, p in percept.probabilities.items()}, "senses": percept.source}
+
+
 FrameHook = Callable[[dict, str, float], None]  # (observation, running controller, goal score now)
 
 
@@ -126,7 +137,7 @@ def compose_episode(env, library: dict[str, Controller], world: GearWorldModel, 
             if not applicable.any():
                 return None
             decision = selector.decide(world.encode(obs), applicable)
-            result.decisions.append({"step": step, **decision.log(0)})
+            result.decisions.append({"step": step, **decision.log(0), **sensed(library, obs)})
             chosen = library[decision.chosen(0)]
             subtask = getattr(chosen, "subtask", None)
             result.activations.append(Activation(chosen.name, step, subtask=getattr(subtask, "name", "")))

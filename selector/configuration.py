@@ -107,8 +107,8 @@ class ComposeConfig:
                                minimum=1)
     episode_failures: int = option(2, "a controller that failed this often in the episode is not chosen again",
                                    minimum=1)
-    senses: str = option("learned", "where the controllers have the task's predicates from: the world model's "
-                         "classifiers, or the simulator's truth (the oracle)", SENSES)
+    senses: str = option("oracle", "where the controllers have the task's predicates from: the simulator's truth "
+                         "(the oracle), or the world model's classifiers (learned)", SENSES)
 
     def __post_init__(self):
         check_options(self)

@@ -23,34 +23,48 @@ from policy_composer.learning.layers import image_encoder
 from policy_composer.learning.training import adam, fit_epochs
 from policy_composer.policies.senses import THRESHOLD, CachedSenses, Percept
 from policy_composer.selector.configuration import PredicateConfig
+from policy_composer.tasks.gear_geometry import GearSpec
+from policy_composer.tasks.gear_kinematics import HandToPeg
 from policy_composer.tasks.spec import PREDICATES, STATE_NAMES
 
 TRAIN_HINT = "policy-composer train predicates"
 HELD_OUT_EVERY = 5  # every fifth episode of each dataset is held out of the training, for the figures
+# What the classifiers know of the robot besides the cameras: its joint state, and where its left hand is over the peg
+# by both arms' forward kinematics.
+PROPRIOCEPTION = (*STATE_NAMES, "hand_to_peg_x", "hand_to_peg_y", "hand_to_peg_z")
+_hand_to_peg: list[HandToPeg] = []
+
+
+def proprioception(state: torch.Tensor) -> torch.Tensor:
+    """(N, len(PROPRIOCEPTION)) float32 of joint states (N, 16)."""
+    if not _hand_to_peg:
+        _hand_to_peg.append(HandToPeg(GearSpec()))
+    hand = torch.as_tensor(_hand_to_peg[0](state.double().numpy()), dtype=torch.float32)
+    return torch.cat([state.float(), hand], dim=-1)
 
 
 class PredicateModel(nn.Module):
-    """P(predicate | the cameras' images, the joint state): the images stacked as channels through a small CNN, the
-    standardised state through a linear layer, both into a logit."""
+    """P(predicate | the cameras' images, proprioception): the images stacked as channels through a small CNN, the
+    standardised PROPRIOCEPTION through a linear layer, both into a logit."""
 
     def __init__(self, config: PredicateConfig):
         super().__init__()
         self.config = config
         self.encoder = image_encoder("small", config.hidden_dim, in_channels=3 * len(config.cameras))
-        self.state = nn.Sequential(nn.Linear(len(STATE_NAMES), config.hidden_dim), nn.ReLU())
+        self.state = nn.Sequential(nn.Linear(len(PROPRIOCEPTION), config.hidden_dim), nn.ReLU())
         self.head = nn.Sequential(nn.Linear(2 * config.hidden_dim, config.hidden_dim), nn.ReLU(),
                                   nn.Linear(config.hidden_dim, 1))
-        self.register_buffer("state_mean", torch.zeros(len(STATE_NAMES)))
-        self.register_buffer("state_std", torch.ones(len(STATE_NAMES)))
+        self.register_buffer("state_mean", torch.zeros(len(PROPRIOCEPTION)))
+        self.register_buffer("state_std", torch.ones(len(PROPRIOCEPTION)))
 
     def forward(self, images: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
-        """Logits (B,) of images (B, 3C, S, S) in [0, 1] and states (B, 16)."""
+        """Logits (B,) of images (B, 3C, S, S) in [0, 1] and proprioception (B, len(PROPRIOCEPTION))."""
         features = torch.cat([self.encoder(images), self.state((state - self.state_mean) / self.state_std)], -1)
         return self.head(features)[:, 0]
 
     @torch.no_grad()
     def probability(self, images: torch.Tensor, state: torch.Tensor, batch: int = 512) -> torch.Tensor:
-        """P for uint8 images (B, 3C, S, S) and states (B, 16)."""
+        """P for uint8 images (B, 3C, S, S) and proprioception (B, len(PROPRIOCEPTION))."""
         return torch.cat([torch.sigmoid(self(images[i:i + batch].float() / 255.0, state[i:i + batch].float()))
                           for i in range(0, len(images), batch)])
 
@@ -71,7 +85,8 @@ def held_out(episode_index: torch.Tensor) -> torch.Tensor:
 
 def train_predicate(images: torch.Tensor, state: torch.Tensor, labels: torch.Tensor, config: PredicateConfig,
                     progress: bool = True) -> tuple[PredicateModel, list[float]]:
-    """Fit one predicate's classifier to uint8 images (N, 3C, S, S), states (N, 16) and 0/1 labels (N,)."""
+    """Fit one predicate's classifier to uint8 images (N, 3C, S, S), proprioception (N, len(PROPRIOCEPTION)) and 0/1
+    labels (N,)."""
     torch.manual_seed(config.seed)
     model = PredicateModel(config)
     model.state_mean.copy_(state.float().mean(0))
@@ -106,7 +121,8 @@ def train_predicates(frames: dict[str, torch.Tensor], out: str | Path, config: P
     out = Path(out)
     for name in predicates:
         check_out(out / "predicates" / name, PredicateConfig)
-    images, state, labels = stacked(frames, config.cameras), frames["observation.state"], frames["predicates"]
+    images, labels = stacked(frames, config.cameras), frames["predicates"]
+    state = proprioception(frames["observation.state"])
     test = frames["held_out"]
     if test.all():
         raise ValueError("the predicates need episodes to train on besides the held-out ones; record more episodes")
@@ -166,7 +182,7 @@ class LearnedSenses(CachedSenses):
             raise ValueError(f"the predicate classifiers read cameras {missing}; make the env with them "
                              f"(and obs_mode='rgb')")
         images = {c: to_model_image(sensors[c]["rgb"][:1].cpu(), self.size) for c in self.cameras}
-        state = obs["extra"]["state"][:1].cpu().float()
+        state = proprioception(obs["extra"]["state"][:1].cpu())
         return Percept({name: float(torch.sigmoid(model(torch.cat([images[c] for c in model.config.cameras], 1),
                                                         state))[0])
                         for name, model in self.models.items()}, self.source)

@@ -29,7 +29,6 @@ from functools import partial
 from typing import Any
 
 import numpy as np
-import sapien
 import torch
 from mani_skill.agents.multi_agent import MultiAgent
 from mani_skill.envs.sapien_env import BaseEnv
@@ -43,7 +42,14 @@ from transforms3d.euler import euler2quat
 
 from policy_composer.tasks import panda_light  # noqa: F401  (registers the "panda_light" agent)
 from policy_composer.tasks.gear_geometry import GearSpec, build_gear, build_peg_module
-from policy_composer.tasks.gear_kinematics import REST_QPOS, LeftArmIK, plate_direction
+from policy_composer.tasks.gear_kinematics import (
+    LEFT_BASE,
+    REST_QPOS,
+    RIGHT_BASE,
+    LeftArmIK,
+    module_in_hand,
+    plate_direction,
+)
 from policy_composer.tasks.spec import (  # noqa: F401
     ACTION_NAMES,
     ARM_JOINTS,
@@ -58,8 +64,6 @@ from policy_composer.tasks.spec import (  # noqa: F401
 SUPPORTED_ROBOTS = (("panda_light", "panda_light"), ("panda", "panda"))
 SUPPORTED_CONTROL_MODES = ("pd_joint_pos", "pd_joint_delta_pos")  # the first is the default
 
-LEFT_BASE = sapien.Pose(p=[0.0, -0.7, 0.0], q=euler2quat(0, 0, np.pi / 2))
-RIGHT_BASE = sapien.Pose(p=[0.0, 0.7, 0.0], q=euler2quat(0, 0, -np.pi / 2))
 # The left arm starts retracted above its own side of the table, hand down, clear of the peg.
 LEFT_START_QPOS = np.array([0.0, -0.25, 0.0, -2.55, 0.0, 2.30, np.pi / 4, 0.04, 0.04])
 HEAD_EYE, HEAD_TARGET = [0.35, -0.10, 0.70], [0.0, -0.10, 0.05]
@@ -179,11 +183,7 @@ class GearAssemblyEnv(BaseEnv):
         self.table_scene.build()
         self.gear = build_gear(self.scene, self.gear_spec)
         self.peg_module = build_peg_module(self.scene, self.gear_spec)
-        # Peg module in the right TCP frame: flipped (TCP z points down) and shifted so the hand grips the
-        # plate's end while the peg stands `peg_offset` beside the fingers.
-        hz = self.gear_spec.plate_half_size[2]
-        self.module_in_hand = Pose.create_from_pq(p=[self.gear_spec.peg_offset, 0.0, -hz], q=[0.0, 1.0, 0.0, 0.0],
-                                                  device=self.device)
+        self.module_in_hand = Pose.create_from_pq(*module_in_hand(self.gear_spec), device=self.device)
 
     # ---------------------------------------------------------------- episodes
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict):

@@ -411,6 +411,8 @@ def test_a_composed_episode_with_learned_senses_reads_no_truth(world):
             continue
         result = compose_episode(env, library, model, config, seed=0)
         assert result.decisions and result.activations and not seal.reads, seal.reads
+        first = result.decisions[0]  # each decision logs what was sensed when it was taken
+        assert first["senses"] == "learned" and set(first["sensed"]) == set(model.predicates), first
         assert "learned p=" in library["mp_pick"].describe(env.unwrapped.observe())
     env.close()
 
@@ -418,7 +420,13 @@ def test_a_composed_episode_with_learned_senses_reads_no_truth(world):
 def test_each_predicate_is_judged_on_held_out_episodes(world, controller_rollouts, full_task_demos):
     """Every predicate's classifier is trained apart from the held-out episodes and logs its figures there, and the
     logged figures are what the saved model gives on those frames."""
-    from policy_composer.selector.predicates import held_out, load_predicates, predicate_metrics, stacked
+    from policy_composer.selector.predicates import (
+        held_out,
+        load_predicates,
+        predicate_metrics,
+        proprioception,
+        stacked,
+    )
     from policy_composer.tasks.spec import PREDICATES
 
     models = load_predicates(world[0])
@@ -428,7 +436,8 @@ def test_each_predicate_is_judged_on_held_out_episodes(world, controller_rollout
     test = torch.cat([held_out(f["episode_index"]) for f in frames])
     images = stacked({k: torch.cat([f[k] for f in frames]) for k in frames[0] if k.startswith("observation.images")},
                      PREDICATE_CONFIG.cameras)
-    state, labels = torch.cat([f["observation.state"] for f in frames]), torch.cat([f["predicates"] for f in frames])
+    state = proprioception(torch.cat([f["observation.state"] for f in frames]))
+    labels = torch.cat([f["predicates"] for f in frames])
     assert 0 < int(test.sum()) < len(test)
     for column, (name, model) in enumerate(models.items()):
         log = json.loads((world[0] / "predicates" / name / "train_log.json").read_text())

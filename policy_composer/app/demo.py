@@ -20,7 +20,7 @@ from policy_composer.app.pipeline import Stage, StageRecord, run_stages
 from policy_composer.data import interrupt
 from policy_composer.data.lock import one_writer
 from policy_composer.policies.cnn.configuration_cnn import CORRECTIONS, DEMONSTRATIONS, CNNPolicyConfig
-from policy_composer.selector.configuration import ComposeConfig, PredicateConfig
+from policy_composer.selector.configuration import ComposeConfig
 from policy_composer.tasks.spec import CAMERA_NAMES as CAMERAS
 from policy_composer.tasks.spec import SUBTASK_COLUMNS
 
@@ -56,7 +56,6 @@ class Profile:
     mdp_episodes_19: int
     mdp_episodes_100: int  # per heatmap cell
     mdp_levels: tuple[float, ...] | None = None  # noise levels of the heatmap (None: the full grid, 0 to 0.8)
-    predicate_epochs: int = PredicateConfig.epochs  # each predicate classifier's
     mixtures: int = 24  # paper: 24
     horizon: int = 10  # paper: n = 10
     samples: int = 16
@@ -110,7 +109,7 @@ PROFILES = {
                      dagger_epochs=2, dagger_rounds=1, vae_epochs=2, dynamics_epochs=2, goal_epochs=2,
                      table_trials=1, insert_trials=2, compose_episodes=1, knockout_episodes=1, mdp_episodes_19=20,
                      mdp_episodes_100=2,
-                     mdp_levels=(0.0, 0.4, 0.8), predicate_epochs=1, mixtures=4, horizon=3, samples=4, cnn_max_steps=30,
+                     mdp_levels=(0.0, 0.4, 0.8), mixtures=4, horizon=3, samples=4, cnn_max_steps=30,
                      compose_max_steps=250, dagger_subtasks=("move", "insert"),
                      holds="Every stage at the smallest size that runs, to test the pipeline: no figure here means "
                            "anything."),
@@ -124,7 +123,7 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
     from policy_composer.data.recipes import load_recipe
     from policy_composer.policies.library import LIBRARY_REVISION, all_names
     from policy_composer.policies.registry import kinds
-    from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, PredicateConfig, VAEConfig
+    from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
     from policy_composer.tasks.gear_assembly import TASK_REVISION
 
     insertion = load_recipe("gear-insertion-demos")
@@ -140,7 +139,6 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
     vae = VAEConfig(epochs=p.vae_epochs, image_size=p.image_size)
     dynamics = DynamicsConfig(epochs=p.dynamics_epochs)
     goal = GoalScoreConfig(epochs=p.goal_epochs, num_mixtures=p.mixtures, image_size=p.image_size)
-    predicates = PredicateConfig(epochs=p.predicate_epochs, image_size=p.image_size)
     compose = ComposeConfig(horizon=p.horizon, samples=p.samples, max_steps=p.compose_max_steps)
     env = {"resolution": p.resolution, "clearance_mm": 2.0, "task_revision": TASK_REVISION}
     # In the keys of the stages that run the controllers (the DMPs' too: they learn the planner's trajectories): a
@@ -177,17 +175,16 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
               {**record(rollouts, p.rollouts), **library},
               lambda out, i: _record(rollouts, out, p.rollouts, p.resolution, workers, _sources(i)),
               inputs=("dmp", "cnn"), resumable=True, verify=_verify_dataset),
-        Stage("world-model", "train the VAE, the dynamics models, the goal scorers and the predicate classifiers",
-              {"vae": asdict(vae), "dynamics": asdict(dynamics), "goal": asdict(goal), "cameras": CAMERAS,
-               "predicates": asdict(predicates)},
-              lambda out, i: _train_world(out, i, vae, dynamics, goal, predicates),
+        Stage("world-model", "train the VAE, the dynamics models and the goal scorers",
+              {"vae": asdict(vae), "dynamics": asdict(dynamics), "goal": asdict(goal), "cameras": CAMERAS},
+              lambda out, i: _train_world(out, i, vae, dynamics, goal),
               inputs=("controller-rollouts", "full-task-demos"), resumable=True),
         Stage("goal-score", "evaluate the goal score of each camera on the held-out demonstrations",
               {"cameras": CAMERAS},
               lambda out, i: _evaluate_goal(out, i), inputs=("world-model", "full-task-demos")),
         Stage("table", f"Table I: each controller kind on each subtask ({p.table_trials} per cell{inserts})",
               {"trials": p.table_trials, "insert_trials": p.insert_trials, "kinds": table_kinds, **env, **library},
-              lambda out, i: _table(out, i, p, table_kinds, workers), inputs=("dmp", "cnn", "world-model")),
+              lambda out, i: _table(out, i, p, table_kinds, workers), inputs=("dmp", "cnn")),
         # The paper's Table I as the paper got it: the MP and DMP insertions go straight down once
         # (`--insertion straight`); their rollouts and dynamics models are recorded and trained again for it.
         Stage("straight-rollouts", f"record rollouts of the straight-down insertions ({p.rollouts} each)",
@@ -202,7 +199,7 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
         Stage("straight-table", f"Table I with the straight-down insertions: MP and DMP ({p.table_trials} per "
               f"cell{inserts})", {"trials": p.table_trials, "insert_trials": p.insert_trials, **env, **library},
               lambda out, i: _table(out, i, p, ("MP", "DMP"), workers, "straight", ("insert", "full")),
-              inputs=("dmp", "cnn", "world-model")),
+              inputs=("dmp", "cnn")),
         Stage("straight-compose", f"compose the library with the straight-down insertions (episodes: "
               f"{p.compose_episodes})",
               {"compose": asdict(compose), "episodes": p.compose_episodes, **env, **library},
@@ -359,18 +356,16 @@ def _train_policies(out: Path, configs: dict[str, CNNPolicyConfig], datasets: di
     return {"timings": timings, "nll": nll}
 
 
-def _train_world(out: Path, inputs: dict[str, Path], vae, dynamics, goal, predicates) -> dict:
+def _train_world(out: Path, inputs: dict[str, Path], vae, dynamics, goal) -> dict:
     import torch
 
-    from policy_composer.selector.train import train_goal_scores, train_predicate_models, train_world_model
+    from policy_composer.selector.train import train_goal_scores, train_world_model
 
     torch.set_num_threads(2)
     rollouts, demos = inputs["controller-rollouts"] / "dataset", inputs["full-task-demos"] / "dataset"
     timings = train_world_model(rollouts, demos, out / "world", vae, dynamics, resume=True)
     timings.update(train_goal_scores(demos, out / "world", CAMERAS, goal, resume=True))
-    figures = train_predicate_models([rollouts, demos], out / "world", predicates, resume=True)
-    timings.update({f"predicate {name}": f["seconds"] for name, f in figures.items()})
-    return {"timings": timings, "predicates": figures}
+    return {"timings": timings}
 
 
 def _train_straight(out: Path, inputs: dict[str, Path], dynamics) -> dict:
@@ -402,8 +397,7 @@ def _table(out: Path, inputs: dict[str, Path], p: Profile, kinds: tuple[str, ...
     from policy_composer.app.controller_table import evaluate_table, write_table
 
     rows = evaluate_table(list(kinds), _sources(inputs, insertion), p.table_trials, 0, p.resolution, workers=workers,
-                          columns=columns, column_trials={"insert": p.insert_trials or p.table_trials},
-                          predicates=inputs["world-model"] / "world")
+                          columns=columns, column_trials={"insert": p.insert_trials or p.table_trials})
     write_table(rows, out)
     return {"workers": workers,
             "rows": {kind: {c: [cell.successes, cell.trials, cell.safety_stops] for c, cell in row.items()}

@@ -89,9 +89,9 @@ def add_commands(sub) -> None:
     ev_ctrl.add_argument("--subtasks", type=subset_of(SUBTASK_COLUMNS), default=SUBTASK_COLUMNS,
                          help=f"comma-separated columns to run (default: all, {','.join(SUBTASK_COLUMNS)})")
     model_options(ev_ctrl)
-    ev_ctrl.add_argument("--senses", choices=SENSES, default="learned",
-                         help="where the controllers have the task's predicates from: the classifiers in --models "
-                              "(default), or the simulator's truth (the oracle)")
+    ev_ctrl.add_argument("--senses", choices=SENSES, default="oracle",
+                         help="where the controllers have the task's predicates from: the simulator's truth (default: "
+                              "the oracle), or the classifiers in --models (learned)")
     ev_ctrl.add_argument("--models", default=WORLD, help="the world-model folder whose predicate classifiers the "
                          "controllers sense with (--senses learned)")
     ev_ctrl.add_argument("--out", default="results/controllers")

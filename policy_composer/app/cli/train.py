@@ -131,8 +131,10 @@ def add_commands(sub) -> None:
     tr_pred = tr_sub.add_parser("predicates", help="one classifier per task predicate (gear grasped, on the peg, "
                                 "seated, ...): what the controllers sense")
     tr_pred.add_argument("--dataset", nargs="+",
-                         default=[dataset_path("gear-controller-rollouts"), dataset_path("gear-full-task-demos")],
-                         help="labelled recordings (default: the controller rollouts and the full-task demos)")
+                         default=[dataset_path(d) for d in ("gear-controller-rollouts", "gear-full-task-demos",
+                                                            "gear-insertion-demos", "gear-insertion-dagger")],
+                         help="labelled recordings with the head and left forearm cameras (default: the controller "
+                              "rollouts, the full-task and insertion demos, the insertion's DAgger rollouts)")
     tr_pred.add_argument("--cameras", type=names, default=",".join(PredicateConfig.cameras))
     add_config_options(tr_pred, PredicateConfig, {"epochs": "epochs", "image_size": "image-size", "seed": "seed"})
     tr_pred.add_argument("--threads", type=at_least(1), default=2)
