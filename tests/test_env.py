@@ -221,3 +221,22 @@ def test_the_expert_s_unrecorded_pick_up_renders_nothing_but_the_start_state(rgb
     start_state(rgb_env, 2, "move")
     assert int(u.elapsed_steps[0]) == steps
     torch.testing.assert_close(torch.cat([u.gear.pose.raw_pose, u.joint_state()], -1), unobserved)
+
+
+def test_the_robot_knows_its_hand_over_the_peg_from_its_joints(state_env):
+    """What the predicate classifiers get besides the cameras: the left hand relative to the peg's top from both arms'
+    joint angles (forward kinematics and the peg module's place in the right hand) is where the simulator has it, at
+    the start, on the way down and off to the side."""
+    from policy_composer.tasks.gear_kinematics import HandToPeg
+
+    u = state_env.unwrapped
+    hand_to_peg = HandToPeg(u.gear_spec)
+    for seed, start in ((0, None), (1, "pre_insertion")):
+        obs, _ = state_env.reset(seed=seed, options={"start": start} if start else None)
+        for _ in range(2):
+            truth = (u.peg_top.inv() * u.left_arm.tcp.pose).p[0].numpy()
+            np.testing.assert_allclose(hand_to_peg(obs["extra"]["state"].numpy())[0], truth, atol=1e-5)
+            action = u.hold_action()[0].clone()
+            action[:7] += torch.tensor([0.3, -0.2, 0.1, 0.2, 0.0, -0.2, 0.3])  # somewhere else
+            for _ in range(20):
+                obs, *_ = state_env.step(u.flat_to_dict_action(action))
