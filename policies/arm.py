@@ -64,11 +64,11 @@ class SceneGeometry:
     (`gear_spec`). The one thing given from the simulator is the gear's position for the pick-up's planner
     (`planner_gear`), with `gear_noise` (m, per axis in the table's plane) where the figures ask for it."""
 
-    def __init__(self, env, gear_noise: float = 0.0):
+    def __init__(self, env):
         self.env = env.unwrapped if hasattr(env, "unwrapped") else env
         self.spec = self.env.gear_spec
         self.grasp_height = self.spec.grasp_height
-        self.gear_noise = gear_noise
+        self.gear_noise = 0.0
         self.rng = np.random.default_rng()
 
     def seed(self, seed: int | None) -> None:
@@ -116,11 +116,11 @@ class LeftArmController(Controller):
     subtask = None  # the policy_composer.policies.subtasks.Subtask it serves: guards the release, says how to back off
     ik = None  # a LeftArmIK (subclasses that serve a subtask set it)
 
-    def __init__(self, env, senses: Senses | None = None):
+    def __init__(self, env):
         self.env = env.unwrapped if hasattr(env, "unwrapped") else env
         self.rate_hz = float(self.env.control_freq)
         self.scene = SceneGeometry(self.env)
-        self.senses: Senses = senses or OracleSenses(self.env)  # the library gives its controllers one to share
+        self.senses: Senses = OracleSenses(self.env)  # build_library gives its controllers one to share
         self.outcome = Outcome.DONE
         self.reason = ""
         self._gripper = GRIPPER_OPEN

@@ -289,9 +289,8 @@ class SubtaskController(ScriptedController):
 
     kind = ""  # "mp", "dmp"
 
-    def __init__(self, env, subtask: Subtask, max_grasp_offset: float = 0.012, grasp_offset: float | None = None,
-                 senses=None):
-        super().__init__(env, senses)
+    def __init__(self, env, subtask: Subtask, max_grasp_offset: float = 0.012, grasp_offset: float | None = None):
+        super().__init__(env)
         self.subtask = subtask
         self.name = f"{self.kind}_{subtask.name}"
         self.initiation = subtask.initiation
@@ -380,8 +379,8 @@ class LearnedController(LeftArmController):
 
     action_kind = "joint_targets"
 
-    def __init__(self, env, subtask: Subtask, name: str, max_steps: int = 120, senses=None):
-        super().__init__(env, senses)
+    def __init__(self, env, subtask: Subtask, name: str, max_steps: int = 120):
+        super().__init__(env)
         self.subtask, self.name, self.initiation, self.max_steps = subtask, name, subtask.initiation, max_steps
         self.ik = LeftArmIK(self.env)
         self.guard = SceneCollisionModel()

@@ -19,6 +19,7 @@ from policy_composer.policies.base import Controller
 from policy_composer.policies.planning import PlanningError
 from policy_composer.selector.configuration import ComposeConfig
 from policy_composer.selector.world_model import GearWorldModel
+from policy_composer.tasks.gear_assembly import gear_whereabouts
 
 
 @dataclass
@@ -88,19 +89,6 @@ class Eligibility:
                 and (self.episode_failures is None or self.all_failures[name] < self.episode_failures))
 
 
-def gear_whereabouts(info: dict) -> str:
-    """Where the gear is, in the words of the task's flags."""
-    if bool(info["success"][0]):
-        return "seated on the peg"
-    if bool(info["gear_inserted"][0]):
-        return "on the peg, not seated"
-    if bool(info["gear_at_peg"][0]):
-        return "in the hand above the peg"
-    if bool(info["gear_grasped"][0]):
-        return "in the hand"
-    return "out of the hand"
-
-
 def sensed(library: dict[str, Controller], obs) -> dict:
     """What the library's controllers sensed when the selector decided (their initiation sets' predicates), for the
     decision log: {"sensed": {predicate: probability}, "senses": "learned" or "oracle"} ({} for controllers without
@@ -165,7 +153,7 @@ def compose_episode(env, library: dict[str, Controller], world: GearWorldModel, 
         result.reached = max(result.reached, int(info["stage"][0]))
         if on_frame is not None:
             on_frame(obs, running.name, world.score_observation(obs))
-    info = u.evaluate()
+    # The scorer's verdict, from the info the last step (or the reset) gave.
     result.success, result.gear = bool(info["success"][0]), gear_whereabouts(info)
     if running is None:
         result.ended = "task done" if result.success else "nothing applicable"

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
+from functools import cache
 from pathlib import Path
 
 import torch
@@ -32,14 +33,16 @@ HELD_OUT_EVERY = 5  # every fifth episode of each dataset is held out of the tra
 # What the classifiers know of the robot besides the cameras: its joint state, and where its left hand is over the peg
 # by both arms' forward kinematics.
 PROPRIOCEPTION = (*STATE_NAMES, "hand_to_peg_x", "hand_to_peg_y", "hand_to_peg_z")
-_hand_to_peg: list[HandToPeg] = []
+
+
+@cache
+def _hand_to_peg() -> HandToPeg:
+    return HandToPeg(GearSpec())
 
 
 def proprioception(state: torch.Tensor) -> torch.Tensor:
     """(N, len(PROPRIOCEPTION)) float32 of joint states (N, 16)."""
-    if not _hand_to_peg:
-        _hand_to_peg.append(HandToPeg(GearSpec()))
-    hand = torch.as_tensor(_hand_to_peg[0](state.double().numpy()), dtype=torch.float32)
+    hand = torch.as_tensor(_hand_to_peg()(state.double().numpy()), dtype=torch.float32)
     return torch.cat([state.float(), hand], dim=-1)
 
 

@@ -429,10 +429,11 @@ class GearAssemblyEnv(BaseEnv):
                     gear_inserted=inserted, gear_on_table=on_table, stage=stage, radial_offset=radial,
                     height_above_base=height)
 
-    def predicates(self) -> dict[str, torch.Tensor]:
+    def predicates(self, info: dict | None = None) -> dict[str, torch.Tensor]:
         """Each of PREDICATES from the simulator's truth, (B,) bool: the recordings' labels and the oracle's
-        perception (privileged: no controller of the library reads it)."""
-        info = self.evaluate()
+        perception (privileged: no controller of the library reads it). `info`: `evaluate()` of the scene now, where
+        the caller has it."""
+        info = self.evaluate() if info is None else info
         grasped, lifted, inserted = info["gear_grasped"], info["gear_lifted"], info["gear_inserted"]
         radial, height = info["radial_offset"], info["height_above_base"]
         axis = self.gear.pose.to_transformation_matrix()[:, :3, 2]
@@ -472,6 +473,19 @@ class GearAssemblyEnv(BaseEnv):
 
     def compute_normalized_dense_reward(self, obs: Any, action: torch.Tensor, info: dict):
         return self.compute_dense_reward(obs, action, info) / 6.0
+
+
+def gear_whereabouts(info: dict) -> str:
+    """Where the gear is, in the words of the task's flags."""
+    if bool(info["success"][0]):
+        return "seated on the peg"
+    if bool(info["gear_inserted"][0]):
+        return "on the peg, not seated"
+    if bool(info["gear_at_peg"][0]):
+        return "in the hand above the peg"
+    if bool(info["gear_grasped"][0]):
+        return "in the hand"
+    return "out of the hand"
 
 
 def _pushes(force: torch.Tensor, opening: torch.Tensor, min_force: float = 0.5, max_angle: float = 85) -> torch.Tensor:

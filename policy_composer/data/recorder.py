@@ -58,11 +58,12 @@ def _flat(action, env) -> np.ndarray:
     return torch.as_tensor(action, dtype=torch.float32).reshape(-1).cpu().numpy()
 
 
-def _labels(env) -> tuple[int, np.ndarray, np.ndarray]:
-    """The privileged labels of the scene now: its stage, the gear's offset in the hand and the predicates."""
-    stage = int(env.evaluate()["stage"][0])
-    flags = np.array([float(v[0]) for v in env.predicates().values()], dtype=np.float32)
-    return stage, env.gear_offset_in_hand()[0].cpu().numpy().astype(np.float32), flags
+def _labels(env, info: dict | None = None) -> tuple[int, np.ndarray, np.ndarray]:
+    """The privileged labels of the scene now (`info`: its `evaluate()`, where the caller has it): its stage, the
+    gear's offset in the hand and the predicates."""
+    info = env.evaluate() if info is None else info
+    flags = np.array([float(v[0]) for v in env.predicates(info).values()], dtype=np.float32)
+    return int(info["stage"][0]), env.gear_offset_in_hand()[0].cpu().numpy().astype(np.float32), flags
 
 
 class FrameBuffer(gym.Wrapper):
@@ -125,7 +126,7 @@ class FrameBuffer(gym.Wrapper):
                 "controller": self.controller,  # its index in the dataset's list, when written
                 "next.success": np.array([bool(info["success"][0])]),
             })
-        self._obs, self._labels = obs, _labels(u)
+        self._obs, self._labels = obs, _labels(u, info)
         return obs, reward, terminated, truncated, info
 
     @property
