@@ -20,7 +20,7 @@ MODELS = Path("results/models")
 
 # Bumped when the controllers behave differently, so that stored runs of the old ones are not reused (CHANGELOG.md
 # says what each revision changed).
-LIBRARY_REVISION = 11
+LIBRARY_REVISION = 12
 
 __all__ = ["LIBRARY_REVISION", "LeRobotSource", "LibraryError", "LibrarySources", "all_names", "build_library",
            "cameras_needed", "check_models", "model_ids", "names_of_kind", "subtask_of"]

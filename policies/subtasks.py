@@ -44,6 +44,7 @@ CLEAR_HEIGHT = 0.05  # the re-grasp first lifts the gear straight up this far, c
 RELEASE_HEIGHT_MAX = RELEASE_HEIGHT + 0.008
 SEARCH_STEP = 0.004  # the insertion's guesses at the gear's offset along the fingers are this far apart (m)
 SEARCH_CLEARANCE = 0.008  # between guesses, the gear's bottom goes back up this far above the peg's top (m)
+CONFIRM_STEPS = 3  # a learned controller stops once its subtask has been sensed done this many steps in a row
 # A probing descent is blocked when, over the last STALL_STEPS control steps, the TCP (joint positions and forward
 # kinematics only) went down less than a third of the at least STALL_DESCENT its targets went down.
 STALL_STEPS, STALL_DESCENT = 2, 0.004
@@ -370,9 +371,11 @@ def check_camera(env, camera: str, who: str) -> None:
 
 
 class LearnedController(LeftArmController):
-    """A closed-loop learned policy run for one subtask: it acts every step until the subtask is achieved (and, for one
-    that releases the gear, the hand has let go), or its step budget is spent. Subclasses give
-    `predict(obs) -> (7 joint targets, gripper)`.
+    """A closed-loop learned policy run for one subtask: it acts every step until the subtask has been sensed achieved
+    (and, for one that releases the gear, the hand has let go) for `CONFIRM_STEPS` steps in a row, or its step budget
+    is spent. Subclasses give `predict(obs) -> (7 joint targets, gripper)`.
+
+    The confirmation is a robot's: a gear let go is still moving, and one frame's percept may flicker.
 
     A command that would put the left arm into the right one (or into itself) stops the controller before it is
     sent: a policy that wandered there leaves an arm from which no plan starts (its start "in collision")."""
@@ -397,7 +400,7 @@ class LearnedController(LeftArmController):
 
     def reset(self, obs, seed=None):
         super().reset(obs, seed)
-        self._steps, self._stopped = 0, ""
+        self._steps, self._stopped, self._confirmed = 0, "", 0
         # The right arm where its joints say it stands; nothing else (the gear meets the peg when inserting).
         self.guard.set_scene(np0(self.env.right_arm.robot.get_qpos()), None, self.scene.spec, table=False)
 
@@ -405,7 +408,8 @@ class LearnedController(LeftArmController):
         percept = self.senses(obs)
         achieved = self.subtask.succeeded(percept)[0]
         let_go = self._gripper > 0 and not percept["gear_grasped"]
-        if self._steps >= self.max_steps or (achieved and (let_go or not self.subtask.releases)):
+        self._confirmed = self._confirmed + 1 if achieved and (let_go or not self.subtask.releases) else 0
+        if self._steps >= self.max_steps or self._confirmed >= CONFIRM_STEPS:
             return None
         self._steps += 1
         q, gripper = self.predict(obs)

@@ -24,6 +24,7 @@ from policy_composer.learning.layers import image_encoder
 from policy_composer.learning.training import adam, fit_epochs
 from policy_composer.policies.senses import THRESHOLD, CachedSenses, Percept
 from policy_composer.selector.configuration import PredicateConfig
+from policy_composer.tasks.gear_assembly import GRASP_OFFSET_MAX, PRE_INSERT_RADIUS
 from policy_composer.tasks.gear_geometry import GearSpec
 from policy_composer.tasks.gear_kinematics import HandToPeg
 from policy_composer.tasks.spec import PREDICATES, STATE_NAMES
@@ -33,6 +34,9 @@ HELD_OUT_EVERY = 5  # every fifth episode of each dataset is held out of the tra
 # What the classifiers know of the robot besides the cameras: its joint state, and where its left hand is over the peg
 # by both arms' forward kinematics.
 PROPRIOCEPTION = (*STATE_NAMES, "hand_to_peg_x", "hand_to_peg_y", "hand_to_peg_z")
+# A gear in the fingers is at most the pick-up's error along them off the hand: held farther than this from the peg's
+# axis by kinematics, it is neither at the pre-insertion pose nor on the peg, whatever the images look like.
+HELD_GEAR_REACH = PRE_INSERT_RADIUS + GRASP_OFFSET_MAX
 
 
 @cache
@@ -186,6 +190,10 @@ class LearnedSenses(CachedSenses):
                              f"(and obs_mode='rgb')")
         images = {c: to_model_image(sensors[c]["rgb"][:1].cpu(), self.size) for c in self.cameras}
         state = proprioception(obs["extra"]["state"][:1].cpu())
-        return Percept({name: float(torch.sigmoid(model(torch.cat([images[c] for c in model.config.cameras], 1),
-                                                        state))[0])
-                        for name, model in self.models.items()}, self.source)
+        p = {name: float(torch.sigmoid(model(torch.cat([images[c] for c in model.config.cameras], 1), state))[0])
+             for name, model in self.models.items()}
+        if float(torch.linalg.norm(state[0, -3:-1])) > HELD_GEAR_REACH:
+            p["gear_at_peg"] = 0.0
+            if p["gear_grasped"] >= THRESHOLD:
+                p["gear_on_peg"] = 0.0
+        return Percept(p, self.source)

@@ -33,10 +33,11 @@ from policy_composer.policies.planning import (
     time_parameterize,
 )
 from policy_composer.policies.registry import LibraryError
-from policy_composer.policies.senses import OracleSenses, Percept
-from policy_composer.policies.subtasks import INSERTIONS, SUBTASKS, Insert, LearnedController
+from policy_composer.policies.senses import CachedSenses, OracleSenses, Percept
+from policy_composer.policies.subtasks import CONFIRM_STEPS, INSERTIONS, SUBTASKS, Insert, LearnedController
 from policy_composer.tasks.gear_assembly import LEFT_START_QPOS
 from policy_composer.tasks.gear_kinematics import hand_down_quat
+from policy_composer.tasks.spec import PREDICATES
 
 
 def truth(controller) -> dict:
@@ -492,14 +493,32 @@ def test_the_goal_pose_is_found_from_an_arm_left_contorted(state_env):
     assert np.all(q[:7] >= JOINT_LOW) and np.all(q[:7] <= JOINT_HIGH)
 
 
+class Stays(LearnedController):
+    """A learned policy that holds the arm where it is."""
+
+    def predict(self, obs):
+        return self.left_qpos(obs), -1.0
+
+
+class Scripted(CachedSenses):
+    """Senses a lifted gear held level, `at_peg` (0 or 1) for one observation after another (then 1)."""
+
+    source = "scripted"
+
+    def __init__(self, at_peg):
+        super().__init__()
+        self.at_peg = list(at_peg)
+
+    def perceive(self, obs):
+        held = {"gear_grasped": 1.0, "gear_lifted": 1.0, "gear_held_level": 1.0}
+        at_peg = float(self.at_peg.pop(0)) if self.at_peg else 1.0
+        return Percept(dict.fromkeys(PREDICATES, 0.0) | held | {"gear_at_peg": at_peg}, self.source)
+
+
 def test_a_learned_controller_stops_on_its_step_budget(state_env):
     """A learned policy that never gets its subtask done stops when its step budget is spent (the paper's CNN had 50
     steps), and its activation fails saying so and what it sensed."""
     from policy_composer.app.controller_table import start_state
-
-    class Stays(LearnedController):
-        def predict(self, obs):
-            return self.left_qpos(obs), -1.0
 
     obs = start_state(state_env, 2, "move")
     stays = Stays(state_env, SUBTASKS["move"], "stays_move", max_steps=3)
@@ -507,3 +526,44 @@ def test_a_learned_controller_stops_on_its_step_budget(state_env):
     assert stays.outcome is Outcome.FAILED and stays._steps == 3
     assert stays.reason.startswith("its step budget (3 steps) ran out: the gear is not at the pre-insertion pose"), \
         stays.reason
+
+
+def test_a_learned_controller_stops_once_its_termination_is_sensed_steps_in_a_row(state_env):
+    """One frame's percept does not end an activation: the termination must be sensed CONFIRM_STEPS observations in a
+    row, and a frame that says otherwise starts the count again."""
+    from policy_composer.app.controller_table import start_state
+
+    assert CONFIRM_STEPS == 3
+    obs = start_state(state_env, 2, "move")
+    stays = Stays(state_env, SUBTASKS["move"], "stays_move", max_steps=50)
+    stays.senses = Scripted([0, 1, 0, 1, 1, 1])  # the first observation's is the initiation set's
+    run_activation(state_env, stays, obs, seed=2)
+    assert stays.outcome is Outcome.DONE and stays._steps == 5, (stays.outcome, stays._steps, stays.reason)
+
+
+def test_kinematics_rule_out_a_held_gear_at_the_peg_where_the_hand_is_not(state_env):
+    """Classifiers that say yes to everything still sense a held gear neither at the pre-insertion pose nor on the
+    peg where the hand, by both arms' kinematics, is farther from the peg's axis than a grasped gear can be."""
+    from torch import nn
+
+    from policy_composer.app.controller_table import start_state
+    from policy_composer.selector.configuration import PredicateConfig
+    from policy_composer.selector.predicates import LearnedSenses, PredicateModel
+
+    def sure(name: str) -> PredicateModel:
+        model = PredicateModel(PredicateConfig(predicate=name, image_size=32))
+        nn.init.zeros_(model.head[-1].weight)
+        nn.init.constant_(model.head[-1].bias, 10.0)
+        return model
+
+    senses = LearnedSenses({name: sure(name) for name in PREDICATES})
+
+    def seen(obs):  # blank images: the classifiers' answers do not depend on them
+        return {"sensor_data": {c: {"rgb": torch.zeros(1, 32, 32, 3, dtype=torch.uint8)} for c in senses.cameras},
+                "extra": obs["extra"]}
+
+    over = seen(state_env.reset(seed=0, options={"start": "pre_insertion"})[0])
+    assert senses(over)["gear_at_peg"] and senses(over)["gear_on_peg"]
+    away = senses(seen(start_state(state_env, 2, "move")))  # the gear lifted off the table, far from the peg
+    assert away.probabilities["gear_at_peg"] == 0.0 and away.probabilities["gear_on_peg"] == 0.0
+    assert away["gear_seated"] and away["gear_grasped"]  # what kinematics cannot rule out stays the classifiers'

@@ -234,18 +234,19 @@ def test_the_main_job_runs_every_stage_reuses_them_and_writes_a_report_a_browser
     assert first.returncode == 0, first.stdout[-3000:] + _messages(first.stderr)[-4000:]
     resumed = [line for line in first.stdout.splitlines() if line.startswith("[")]
     assert ": reused " in resumed[0] and ": reused " in resumed[1]  # the demos finished before the interrupt
-    assert resumed[2].startswith("[3/19] record the full-task") and resumed[2].endswith("(resuming)"), resumed[2]
+    assert resumed[2].startswith("[3/21] record the full-task") and resumed[2].endswith("(resuming)"), resumed[2]
     second = run_cli(*cmd[1:], cwd=ROOT)
     assert second.returncode == 0, _messages(second.stderr)[-4000:]
     stage_lines = [line for line in second.stdout.splitlines() if line.startswith("[")]
-    assert len(stage_lines) == 19 and all(": reused " in line for line in stage_lines), second.stdout
+    assert len(stage_lines) == 21 and all(": reused " in line for line in stage_lines), second.stdout
 
     report = (tmp_path / "report.md").read_text()
-    for row in ("| MP |", "| DMP |", "| CNN |", "| composed (selector) |", "| head |", "| left_forearm |",
-                "| right_forearm |", "planning steps to the goal", "| step | chosen |", "## Machine",
-                "(95% CI ", "| composed (selector) | picked ", " frames/s", " episodes/s", " trials/s"):
+    for row in ("| MP |", "| DMP |", "| CNN |", "| composed (selector), oracle predicates |", "| head |",
+                "| left_forearm |", "| right_forearm |", "planning steps to the goal", "| step | chosen |",
+                "## Machine", "(95% CI ", "| composed (selector), sensed predicates | picked ", " frames/s",
+                " episodes/s", " trials/s", "| gear_seated | "):
         assert row in report, f"{row!r} missing from the report"
-    assert "0 of 19 stages ran" in report
+    assert "0 of 21 stages ran" in report
     # The paper's experiment comes first: its Table I with the straight-down insertions, and which controller
     # served each subtask in its composed episodes.
     assert report.index("## Table I, the paper's experiment") < report.index("## Table I beyond the paper")

@@ -1,8 +1,9 @@
 """`policy-composer demo`: the paper reproduced end to end, as stages of the pipeline runner.
 
 record the demo sets -> fit the DMPs, train the CNN policy -> record the controllers' rollouts -> train the VAE,
-the dynamics models and the goal scorers -> evaluate the goal scores and the controllers (Table I) -> compose the
-library with the selector (and recover from a knock-out) -> the random-walk MDP experiments -> the report.
+the dynamics models, the goal scorers and the predicate classifiers -> evaluate the goal scores and the controllers
+(Table I) -> compose the library with the selector, on the oracle's predicates and on the sensed ones (and recover
+from a knock-out) -> the random-walk MDP experiments -> the report.
 
 A profile says how big each stage is: `quick` fits in 30 minutes on a 2-core CPU, `paper` uses the paper's sizes,
 `smoke` is the smallest that runs every stage (for tests: its figures mean nothing).
@@ -50,6 +51,7 @@ class Profile:
     vae_epochs: int
     dynamics_epochs: int
     goal_epochs: int
+    predicate_epochs: int  # each predicate classifier's
     table_trials: int  # per Table I cell (paper: 10)
     compose_episodes: int  # the first 10 are Table I's composed row; all of them the success rate over seeds
     knockout_episodes: int
@@ -80,7 +82,8 @@ PROFILES = {
                      full_task_demos=7, train_demos=5, dmp_episodes=5, rollouts=4, cnn_epochs=80, insert_epochs=200,
                      dagger_episodes=50, dagger_epochs=120, dagger_rounds=2,
                      bfloat16_subtasks=("pick", "move", "insert"), vae_epochs=15, dynamics_epochs=30,
-                     goal_epochs=30, table_trials=3, insert_trials=10, compose_episodes=10, knockout_episodes=3,
+                     goal_epochs=30, predicate_epochs=6, table_trials=3, insert_trials=10, compose_episodes=10,
+                     knockout_episodes=3,
                      mdp_episodes_19=1000, mdp_episodes_100=30,
                      holds="The MDP experiments, the MP row of Table I, the CNN insertion and the goal-score "
                            "comparison between cameras hold at this size (the MP row needs no training; the CNN "
@@ -98,7 +101,7 @@ PROFILES = {
                      full_task_demos=8, train_demos=5, dmp_episodes=5, rollouts=20, cnn_epochs=200,
                      dagger_episodes=50, dagger_epochs=120, dagger_rounds=3, dagger_subtasks=("move", "insert"),
                      bfloat16_subtasks=("insert",),
-                     vae_epochs=30, dynamics_epochs=60, goal_epochs=60,
+                     vae_epochs=30, dynamics_epochs=60, goal_epochs=60, predicate_epochs=6,
                      table_trials=10, compose_episodes=50, knockout_episodes=10, mdp_episodes_19=1000,
                      mdp_episodes_100=100,
                      holds="The paper's sizes: 50 insertion demonstrations (and 50 of the pick-up and carry), 5 "
@@ -107,6 +110,7 @@ PROFILES = {
     "smoke": Profile("smoke", resolution=32, image_size=32, insertion_demos=1, transport_demos=1,
                      full_task_demos=2, train_demos=1, dmp_episodes=1, rollouts=1, cnn_epochs=2, dagger_episodes=1,
                      dagger_epochs=2, dagger_rounds=1, vae_epochs=2, dynamics_epochs=2, goal_epochs=2,
+                     predicate_epochs=1,
                      table_trials=1, insert_trials=2, compose_episodes=1, knockout_episodes=1, mdp_episodes_19=20,
                      mdp_episodes_100=2,
                      mdp_levels=(0.0, 0.4, 0.8), mixtures=4, horizon=3, samples=4, cnn_max_steps=30,
@@ -123,7 +127,7 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
     from policy_composer.data.recipes import load_recipe
     from policy_composer.policies.library import LIBRARY_REVISION, all_names
     from policy_composer.policies.registry import kinds
-    from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
+    from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, PredicateConfig, VAEConfig
     from policy_composer.tasks.gear_assembly import TASK_REVISION
 
     insertion = load_recipe("gear-insertion-demos")
@@ -139,7 +143,9 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
     vae = VAEConfig(epochs=p.vae_epochs, image_size=p.image_size)
     dynamics = DynamicsConfig(epochs=p.dynamics_epochs)
     goal = GoalScoreConfig(epochs=p.goal_epochs, num_mixtures=p.mixtures, image_size=p.image_size)
+    predicates = PredicateConfig(epochs=p.predicate_epochs, image_size=min(PredicateConfig.image_size, p.image_size))
     compose = ComposeConfig(horizon=p.horizon, samples=p.samples, max_steps=p.compose_max_steps)
+    sensed = replace(compose, senses="learned")
     env = {"resolution": p.resolution, "clearance_mm": 2.0, "task_revision": TASK_REVISION}
     # In the keys of the stages that run the controllers (the DMPs' too: they learn the planner's trajectories): a
     # changed or added controller re-runs them.
@@ -149,6 +155,20 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
 
     def record(recipe, episodes):
         return {"recipe": asdict(recipe), "episodes": episodes, "features_revision": FEATURES_REVISION, **env}
+
+    dagger_stages = _dagger_rounds(p, {s: (r, c, record(r, p.dagger_episodes)) for s, (r, c) in dagger.items()},
+                                   workers)
+    # What the predicate classifiers learn from: every recording of the library's and the expert's episodes that
+    # reaches the peg (the pick-up and carry demonstrations add nothing there).
+    labelled = ("controller-rollouts", "full-task-demos", "insertion-demos",
+                *(s.name for s in dagger_stages if s.verify is _verify_dataset))
+
+    def compose_stage(name, what, config, insertion, world):
+        return Stage(name, f"{what} (episodes: {p.compose_episodes})",
+                     {"compose": asdict(config), "episodes": p.compose_episodes, **env, **library},
+                     lambda out, i: _compose(out, i, config, list(range(p.compose_episodes)), p.resolution, None,
+                                             workers, insertion),
+                     inputs=("dmp", "cnn", world), resumable=True)
 
     return [
         Stage("insertion-demos", f"record the insertion demonstrations ({p.insertion_demos})",
@@ -170,15 +190,16 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
               f"train the CNN policies on the demonstrations: pick, move, insert ({p.cnn_training()})",
               {s: asdict(c) for s, c in cnn.items()},
               lambda out, i: _train_cnn(out, i, cnn), inputs=("insertion-demos", "transport-demos"), resumable=True),
-        *_dagger_rounds(p, {s: (r, c, record(r, p.dagger_episodes)) for s, (r, c) in dagger.items()}, workers),
+        *dagger_stages,
         Stage("controller-rollouts", f"record rollouts of each controller ({p.rollouts} each)",
               {**record(rollouts, p.rollouts), **library},
               lambda out, i: _record(rollouts, out, p.rollouts, p.resolution, workers, _sources(i)),
               inputs=("dmp", "cnn"), resumable=True, verify=_verify_dataset),
-        Stage("world-model", "train the VAE, the dynamics models and the goal scorers",
-              {"vae": asdict(vae), "dynamics": asdict(dynamics), "goal": asdict(goal), "cameras": CAMERAS},
-              lambda out, i: _train_world(out, i, vae, dynamics, goal),
-              inputs=("controller-rollouts", "full-task-demos"), resumable=True),
+        Stage("world-model", "train the VAE, the dynamics models, the goal scorers and the predicate classifiers",
+              {"vae": asdict(vae), "dynamics": asdict(dynamics), "goal": asdict(goal), "cameras": CAMERAS,
+               "predicates": asdict(predicates)},
+              lambda out, i: _train_world(out, i, vae, dynamics, goal, predicates, labelled),
+              inputs=tuple(dict.fromkeys(("controller-rollouts", "full-task-demos", *labelled))), resumable=True),
         Stage("goal-score", "evaluate the goal score of each camera on the held-out demonstrations",
               {"cameras": CAMERAS},
               lambda out, i: _evaluate_goal(out, i), inputs=("world-model", "full-task-demos")),
@@ -200,17 +221,13 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
               f"cell{inserts})", {"trials": p.table_trials, "insert_trials": p.insert_trials, **env, **library},
               lambda out, i: _table(out, i, p, ("MP", "DMP"), workers, "straight", ("insert", "full")),
               inputs=("dmp", "cnn")),
-        Stage("straight-compose", f"compose the library with the straight-down insertions (episodes: "
-              f"{p.compose_episodes})",
-              {"compose": asdict(compose), "episodes": p.compose_episodes, **env, **library},
-              lambda out, i: _compose(out, i, compose, list(range(p.compose_episodes)), p.resolution, None,
-                                       workers, "straight"),
-              inputs=("dmp", "cnn", "straight-world-model"), resumable=True),
-        Stage("compose", f"compose the library with the selector (episodes: {p.compose_episodes})",
-              {"compose": asdict(compose), "episodes": p.compose_episodes, **env, **library},
-              lambda out, i: _compose(out, i, compose, list(range(p.compose_episodes)), p.resolution, None,
-                                       workers),
-              inputs=("dmp", "cnn", "world-model"), resumable=True),
+        compose_stage("straight-compose", "compose the library with the straight-down insertions", compose,
+                      "straight", "straight-world-model"),
+        compose_stage("sensed-straight-compose", "compose it again on the predicate classifiers", sensed,
+                      "straight", "straight-world-model"),
+        compose_stage("compose", "compose the library with the selector", compose, "feel", "world-model"),
+        compose_stage("sensed-compose", "compose it again on the predicate classifiers", sensed, "feel",
+                      "world-model"),
         Stage("knock-out", f"recovery from the gear knocked out of the gripper (episodes: {p.knockout_episodes})",
               {"compose": asdict(compose), "episodes": p.knockout_episodes, "knock_out_step": 100, **env,
                **library},
@@ -356,16 +373,19 @@ def _train_policies(out: Path, configs: dict[str, CNNPolicyConfig], datasets: di
     return {"timings": timings, "nll": nll}
 
 
-def _train_world(out: Path, inputs: dict[str, Path], vae, dynamics, goal) -> dict:
+def _train_world(out: Path, inputs: dict[str, Path], vae, dynamics, goal, predicates, labelled) -> dict:
     import torch
 
-    from policy_composer.selector.train import train_goal_scores, train_world_model
+    from policy_composer.selector.train import train_goal_scores, train_predicate_models, train_world_model
 
     torch.set_num_threads(2)
     rollouts, demos = inputs["controller-rollouts"] / "dataset", inputs["full-task-demos"] / "dataset"
     timings = train_world_model(rollouts, demos, out / "world", vae, dynamics, resume=True)
     timings.update(train_goal_scores(demos, out / "world", CAMERAS, goal, resume=True))
-    return {"timings": timings}
+    figures = train_predicate_models([inputs[n] / "dataset" for n in labelled], out / "world", predicates,
+                                     resume=True)
+    timings.update({f"predicate {name}": f.pop("seconds") for name, f in figures.items()})
+    return {"timings": timings, "predicates": figures}
 
 
 def _train_straight(out: Path, inputs: dict[str, Path], dynamics) -> dict:
