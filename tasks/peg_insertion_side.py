@@ -1,0 +1,73 @@
+"""ManiSkill's own PegInsertionSide-v1, as mani-skill ships it, seen through this project's eyes: the subtask predicates
+its recordings would be labelled with, and a strict success beside ManiSkill's.
+
+**Task Description:** the Panda (``panda_wristcam``: ManiSkill's ``hand_camera`` on the hand, and the env's
+``base_camera``) picks up a peg lying on the table and pushes its head sideways into the hole of a box.
+
+**Randomizations:** ManiSkill's: the peg's length (85-125 mm half-length) and radius (15-25 mm, the hole 3 mm
+wider), the hole's place in the box, the peg's and the box's positions and yaws on the table.
+
+**Success Conditions:** ManiSkill's ``success`` holds once the peg's head is at most 15 mm short of the hole's centre
+plane and within the hole's radius; it has no bound the other way, so a peg pushed through and past the box counts
+(ManiSkill issue 1391). ``strict_success`` asks, as well, that the head be no farther in than the box's far face.
+
+The env is made by mani-skill itself (``gym.make``), not copied: this module only reads its state.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import mani_skill.envs  # noqa: F401  (registers PegInsertionSide-v1)
+import torch
+
+ENV_ID = "PegInsertionSide-v1"
+ROBOT = "panda_wristcam"
+CAMERA_NAMES = ("base_camera", "hand_camera")
+HOLE_ENTRY = -0.015  # ManiSkill's bound: the peg's head this far short of the hole's centre plane, along its axis (m)
+PRE_INSERTION_DISTANCE = 0.05  # the peg's head at most this far in front of the box's near face (m)
+ALIGN_TOL_DEG = 10.0  # the peg's axis within this of the hole's at the pre-insertion pose
+# What the controllers' initiation sets and terminations would be made of on this task (labels of its recordings).
+PREDICATES = {
+    "peg_grasped": "the peg is in the gripper",
+    "peg_at_hole": "the peg is grasped, its axis on the hole's and its head in front of the box (pre-insertion pose)",
+    "peg_inserted": "the peg's head is in the hole (ManiSkill's success)",
+    "peg_seated": "the peg's head is in the hole and not past the box's far face (the strict success)",
+}
+
+
+def make_env(**kwargs) -> gym.Env:
+    """PegInsertionSide-v1 with the wrist camera robot; `kwargs` go to `gym.make` (obs_mode, control_mode, ...)."""
+    return gym.make(ENV_ID, robot_uids=ROBOT, **kwargs)
+
+
+def peg_head_at_hole(env) -> torch.Tensor:
+    """(B, 3) the peg's head in the hole's frame, whose x axis runs into the box (ManiSkill's own measure)."""
+    u = env.unwrapped
+    return (u.box_hole_pose.inv() * u.peg_head_pose).p
+
+
+def box_half_depth(env) -> torch.Tensor:
+    """(B,) half the box's depth along the hole's axis: ManiSkill builds the box as deep as the peg is long."""
+    return env.unwrapped.peg_half_sizes[:, 0]
+
+
+def strict_success(env) -> torch.Tensor:
+    """(B,) bool: ManiSkill's success, with the peg's head no farther in than the box's far face."""
+    inserted, head = env.unwrapped.has_peg_inserted()
+    return inserted & (head[:, 0] <= box_half_depth(env))
+
+
+def predicates(env) -> dict[str, torch.Tensor]:
+    """Each of PREDICATES from the simulator's truth, (B,) bool: privileged, for labels and the oracle."""
+    u = env.unwrapped
+    inserted, head = u.has_peg_inserted()
+    radius = u.box_hole_radii
+    peg_axis = u.peg.pose.to_transformation_matrix()[:, :3, 0]
+    hole_axis = u.box_hole_pose.to_transformation_matrix()[:, :3, 0]
+    aligned = (peg_axis * hole_axis).sum(-1) > torch.cos(torch.deg2rad(torch.tensor(ALIGN_TOL_DEG)))
+    on_axis = torch.linalg.norm(head[:, 1:], dim=-1) < radius
+    near_face = -box_half_depth(u)
+    in_front = (head[:, 0] < near_face) & (head[:, 0] > near_face - PRE_INSERTION_DISTANCE)
+    grasped = u.agent.is_grasping(u.peg)
+    return {"peg_grasped": grasped, "peg_at_hole": grasped & aligned & on_axis & in_front,
+            "peg_inserted": inserted, "peg_seated": strict_success(u)}

@@ -1,0 +1,62 @@
+"""ManiSkill's PegInsertionSide-v1 through the task adapter: its flags against ManiSkill's own evaluate(), and the
+strict success refusing a peg pushed past the box (ManiSkill issue 1391)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from mani_skill.utils.structs.pose import Pose
+
+from policy_composer.tasks.peg_insertion_side import CAMERA_NAMES, PREDICATES, make_env, predicates, strict_success
+
+
+@pytest.fixture(scope="module")
+def env():
+    env = make_env(obs_mode="state_dict")
+    yield env
+    env.close()
+
+
+def _peg_head_at(env, depth: float):
+    """Put the peg on the hole's axis with its head `depth` metres into the hole from its centre plane."""
+    u = env.unwrapped
+    along = Pose.create_from_pq(p=torch.tensor([[depth, 0.0, 0.0]]))
+    u.peg.set_pose(u.box_hole_pose * along * u.peg_head_offsets.inv())
+
+
+def test_the_adapters_flags_are_maniskills_and_the_strict_success_refuses_an_overshoot(env):
+    env.reset(seed=3)
+    flags = predicates(env)
+    assert set(flags) == set(PREDICATES)
+    assert not any(bool(f[0]) for f in flags.values())  # the peg on the table, the hand open
+    half_depth = float(env.unwrapped.peg_half_sizes[0, 0])
+    for depth, inserted, seated in ((-half_depth - 0.02, False, False),  # in front of the box's near face
+                                    (0.0, True, True),  # the head at the hole's centre plane: the goal pose
+                                    (half_depth - 0.005, True, True),  # just inside the far face
+                                    (half_depth + 0.03, True, False)):  # pushed through, past the far face
+        _peg_head_at(env, depth)
+        maniskill = bool(env.unwrapped.evaluate()["success"][0])
+        flags = predicates(env)
+        assert maniskill == inserted and bool(flags["peg_inserted"][0]) == maniskill, depth
+        assert bool(strict_success(env)[0]) == seated == bool(flags["peg_seated"][0]), depth
+        assert not flags["peg_grasped"][0] and not flags["peg_at_hole"][0]  # nothing holds it
+
+
+def test_the_pre_insertion_pose_is_a_held_peg_on_the_holes_axis_in_front_of_the_box(env, monkeypatch):
+    env.reset(seed=3)
+    monkeypatch.setattr(env.unwrapped.agent, "is_grasping", lambda actor: torch.tensor([True]))  # a held peg
+    half_depth = float(env.unwrapped.peg_half_sizes[0, 0])
+    for depth, at_hole in ((-half_depth - 0.02, True), (-half_depth - 0.08, False), (0.0, False)):
+        _peg_head_at(env, depth)
+        assert bool(predicates(env)["peg_at_hole"][0]) == at_hole, depth
+
+
+def test_it_is_maniskills_env_with_the_wrist_camera():
+    env = make_env(obs_mode="rgb")
+    try:
+        obs, _ = env.reset(seed=0)
+        assert env.unwrapped.robot_uids == "panda_wristcam"
+        assert set(obs["sensor_data"]) == set(CAMERA_NAMES)
+        assert all(obs["sensor_data"][c]["rgb"].float().std() > 0 for c in CAMERA_NAMES)  # rendered, not blank
+    finally:
+        env.close()
