@@ -5,8 +5,8 @@ the dynamics models, the goal scorers and the predicate classifiers -> evaluate 
 (Table I) -> compose the library with the selector, on the oracle's predicates and on the sensed ones (and recover
 from a knock-out) -> the random-walk MDP experiments -> the report.
 
-A profile says how big each stage is: `quick` fits in 30 minutes on a 2-core CPU, `paper` uses the paper's sizes,
-`smoke` is the smallest that runs every stage (for tests: its figures mean nothing).
+A profile says how big each stage is: `quick` runs on a 2-core CPU in well under an hour, `paper` uses the paper's
+sizes, `smoke` is the smallest that runs every stage (for tests: its figures mean nothing).
 """
 
 from __future__ import annotations
