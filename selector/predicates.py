@@ -192,7 +192,8 @@ class LearnedSenses(CachedSenses):
         state = proprioception(obs["extra"]["state"][:1].cpu())
         p = {name: float(torch.sigmoid(model(torch.cat([images[c] for c in model.config.cameras], 1), state))[0])
              for name, model in self.models.items()}
-        if float(torch.linalg.norm(state[0, -3:-1])) > HELD_GEAR_REACH:
+        hand_to_peg = state[0, len(STATE_NAMES):]
+        if float(torch.linalg.norm(hand_to_peg[:2])) > HELD_GEAR_REACH:
             p["gear_at_peg"] = 0.0
             if p["gear_grasped"] >= THRESHOLD:
                 p["gear_on_peg"] = 0.0

@@ -40,21 +40,20 @@ def make_env(**kwargs) -> gym.Env:
     return gym.make(ENV_ID, robot_uids=ROBOT, **kwargs)
 
 
-def peg_head_at_hole(env) -> torch.Tensor:
-    """(B, 3) the peg's head in the hole's frame, whose x axis runs into the box (ManiSkill's own measure)."""
-    u = env.unwrapped
-    return (u.box_hole_pose.inv() * u.peg_head_pose).p
-
-
 def box_half_depth(env) -> torch.Tensor:
     """(B,) half the box's depth along the hole's axis: ManiSkill builds the box as deep as the peg is long."""
     return env.unwrapped.peg_half_sizes[:, 0]
 
 
+def _not_past(env, inserted: torch.Tensor, head: torch.Tensor) -> torch.Tensor:
+    """ManiSkill's `has_peg_inserted()` (inserted, the peg's head in the hole's frame, x into the box), with the head
+    no farther in than the box's far face."""
+    return inserted & (head[:, 0] <= box_half_depth(env))
+
+
 def strict_success(env) -> torch.Tensor:
     """(B,) bool: ManiSkill's success, with the peg's head no farther in than the box's far face."""
-    inserted, head = env.unwrapped.has_peg_inserted()
-    return inserted & (head[:, 0] <= box_half_depth(env))
+    return _not_past(env, *env.unwrapped.has_peg_inserted())
 
 
 def predicates(env) -> dict[str, torch.Tensor]:
@@ -70,4 +69,4 @@ def predicates(env) -> dict[str, torch.Tensor]:
     in_front = (head[:, 0] < near_face) & (head[:, 0] > near_face - PRE_INSERTION_DISTANCE)
     grasped = u.agent.is_grasping(u.peg)
     return {"peg_grasped": grasped, "peg_at_hole": grasped & aligned & on_axis & in_front,
-            "peg_inserted": inserted, "peg_seated": strict_success(u)}
+            "peg_inserted": inserted, "peg_seated": _not_past(u, inserted, head)}
