@@ -21,14 +21,18 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import Enum
 
+import coal
 import numpy as np
+import pinocchio as pin
+import sapien
 import torch
 
 from policy_composer.policies.base import Controller
-from policy_composer.policies.planning import VELOCITY_LIMIT
+from policy_composer.policies.mp.planning import Obstacle, panda_obstacles, se3, table_obstacle
 from policy_composer.policies.senses import OracleSenses, Percept, Senses
 from policy_composer.tasks.gear_assembly import CARRY_CLEARANCE
-from policy_composer.tasks.gear_kinematics import JOINT_HIGH, JOINT_LOW
+from policy_composer.tasks.gear_kinematics import RIGHT_BASE
+from policy_composer.tasks.panda import JOINT_HIGH, JOINT_LOW, VELOCITY_LIMIT
 
 GRIPPER_OPEN, GRIPPER_CLOSED = 1.0, -1.0
 RELEASE_HEIGHT = 0.012  # gear bottom above the plate when the gripper opens (m)
@@ -106,6 +110,21 @@ class SceneGeometry:
     def pre_insertion_tcp(self) -> np.ndarray:
         """TCP position that puts a centred gear's bottom CARRY_CLEARANCE above the peg top."""
         return self.peg_top() + [0, 0, CARRY_CLEARANCE + self.grasp_height]
+
+    def obstacles(self, table: bool = True, module: bool = True) -> list[Obstacle]:
+        """The scene as the left arm's planner knows it: the table, the right arm where its joints say it stands, and
+        the peg module it holds (see policy_composer.tasks.gear_geometry.build_peg_module)."""
+        out = [table_obstacle()] if table else []
+        out += panda_obstacles(np0(self.env.right_arm.robot.get_qpos()), RIGHT_BASE, "right_")
+        if module:
+            spec, pose = self.spec, self.module_pose()
+            world = se3(sapien.Pose(np0(pose.p), np0(pose.q)))
+            hx, hy, hz = spec.plate_half_size
+            out += [Obstacle("plate", coal.Box(2 * hx, 2 * hy, 2 * hz),
+                             world * pin.SE3(np.eye(3), np.array([-spec.peg_offset - 0.03 + hx, 0.0, -hz]))),
+                    Obstacle("peg", coal.Cylinder(spec.peg_radius, spec.peg_height),
+                             world * pin.SE3(np.eye(3), np.array([0.0, 0.0, spec.peg_height / 2])))]
+        return out
 
 
 class LeftArmController(Controller):

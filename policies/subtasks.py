@@ -29,7 +29,7 @@ from policy_composer.policies.arm import (
     Segment,
     np0,
 )
-from policy_composer.policies.planning import VELOCITY_LIMIT, PlanningError, SceneCollisionModel
+from policy_composer.policies.mp.planning import VELOCITY_LIMIT, PlanningError, SceneCollisionModel
 from policy_composer.policies.senses import Percept
 from policy_composer.tasks.gear_assembly import CARRY_CLEARANCE
 from policy_composer.tasks.gear_kinematics import LeftArmIK
@@ -386,7 +386,7 @@ class LearnedController(LeftArmController):
         super().__init__(env)
         self.subtask, self.name, self.initiation, self.max_steps = subtask, name, subtask.initiation, max_steps
         self.ik = LeftArmIK(self.env)
-        self.guard = SceneCollisionModel()
+        self.guard = SceneCollisionModel(self.ik.base())
 
     def can_start(self, obs) -> bool:
         return self.subtask.can_start(self.senses(obs))
@@ -402,7 +402,7 @@ class LearnedController(LeftArmController):
         super().reset(obs, seed)
         self._steps, self._stopped, self._confirmed = 0, "", 0
         # The right arm where its joints say it stands; nothing else (the gear meets the peg when inserting).
-        self.guard.set_scene(np0(self.env.right_arm.robot.get_qpos()), None, self.scene.spec, table=False)
+        self.guard.set_scene(self.scene.obstacles(table=False, module=False))
 
     def next_command(self, obs):
         percept = self.senses(obs)

@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass, field
 import torch
 
 from policy_composer.policies.base import Controller
-from policy_composer.policies.planning import PlanningError
+from policy_composer.policies.mp.planning import PlanningError
 from policy_composer.selector.configuration import ComposeConfig
 from policy_composer.selector.world_model import GearWorldModel
 from policy_composer.tasks.gear_assembly import gear_whereabouts

@@ -42,14 +42,8 @@ from transforms3d.euler import euler2quat
 
 from policy_composer.tasks import panda_light  # noqa: F401  (registers the "panda_light" agent)
 from policy_composer.tasks.gear_geometry import GearSpec, build_gear, build_peg_module
-from policy_composer.tasks.gear_kinematics import (
-    LEFT_BASE,
-    REST_QPOS,
-    RIGHT_BASE,
-    LeftArmIK,
-    module_in_hand,
-    plate_direction,
-)
+from policy_composer.tasks.gear_kinematics import LEFT_BASE, RIGHT_BASE, LeftArmIK, module_in_hand, plate_direction
+from policy_composer.tasks.panda import REST_QPOS
 from policy_composer.tasks.spec import (  # noqa: F401
     ACTION_NAMES,
     ARM_JOINTS,

@@ -15,7 +15,7 @@ from policy_composer.policies.dmp.controller import (
     fit_primitive,
     rollout,
 )
-from policy_composer.policies.planning import time_parameterize
+from policy_composer.policies.mp.planning import time_parameterize
 from policy_composer.policies.subtasks import SUBTASKS
 
 

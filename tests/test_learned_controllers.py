@@ -35,7 +35,8 @@ from policy_composer.policies.lerobot_policy.controller import LeRobotPolicyCont
 from policy_composer.policies.library import LibrarySources
 from policy_composer.policies.subtasks import SUBTASKS
 from policy_composer.tasks.gear_expert import ExpertConfig, GearAssemblyExpert
-from policy_composer.tasks.gear_kinematics import LeftArmIK, PandaForwardKinematics
+from policy_composer.tasks.gear_kinematics import LeftArmIK
+from policy_composer.tasks.panda import PandaForwardKinematics
 from policy_composer.tasks.spec import EnvSettings
 
 TINY = dict(image_size=32, hidden_dim=64, num_mixtures=4, batch_size=16, epochs=30)

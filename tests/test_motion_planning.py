@@ -16,6 +16,7 @@ from policy_composer.policies.arm import (
     GRIPPER_OPEN,
     STEP_SPEED_MARGIN,
     Outcome,
+    SceneGeometry,
     ScriptedController,
     Segment,
     np0,
@@ -24,7 +25,7 @@ from policy_composer.policies.arm import (
 from policy_composer.policies.base import InitiationError
 from policy_composer.policies.library import LibrarySources, all_names, build_library, model_ids
 from policy_composer.policies.mp.controller import MotionPlanningController
-from policy_composer.policies.planning import (
+from policy_composer.policies.mp.planning import (
     VELOCITY_LIMIT,
     HeldObject,
     PlanningError,
@@ -36,7 +37,8 @@ from policy_composer.policies.registry import LibraryError
 from policy_composer.policies.senses import CachedSenses, OracleSenses, Percept
 from policy_composer.policies.subtasks import CONFIRM_STEPS, INSERTIONS, SUBTASKS, Insert, LearnedController
 from policy_composer.tasks.gear_assembly import LEFT_START_QPOS
-from policy_composer.tasks.gear_kinematics import hand_down_quat
+from policy_composer.tasks.gear_kinematics import LEFT_BASE
+from policy_composer.tasks.panda import hand_down_quat
 from policy_composer.tasks.spec import PREDICATES
 
 
@@ -47,10 +49,8 @@ def truth(controller) -> dict:
 
 def _scene(env) -> SceneCollisionModel:
     u = env.unwrapped
-    model = SceneCollisionModel()
-    pose = u.peg_module.pose
-    model.set_scene(u.right_arm.robot.get_qpos()[0].numpy(), sapien.Pose(pose.p[0].numpy(), pose.q[0].numpy()),
-                    u.gear_spec)
+    model = SceneCollisionModel(LEFT_BASE)
+    model.set_scene(SceneGeometry(u).obstacles())
     return model
 
 
@@ -127,10 +127,8 @@ def test_the_carry_keeps_a_gear_held_off_centre_clear_of_the_peg(state_env):
     held = np0((u.left_arm.tcp.pose.inv() * u.gear.pose).p)  # the gear's bottom centre in the TCP's frame
     assert abs(held[0]) > 0.012
     tcp = model.frames[model.getFrameId("panda_hand_tcp")].placement
-    real = SceneCollisionModel()
-    module = u.peg_module.pose
-    real.set_scene(np0(u.right_arm.robot.get_qpos()), sapien.Pose(np0(module.p), np0(module.q)), spec,
-                   held=HeldObject(spec.outer_radius, spec.height,
+    real = SceneCollisionModel(LEFT_BASE)
+    real.set_scene(move.scene.obstacles(), held=HeldObject(spec.outer_radius, spec.height,
                                    tcp * pin.SE3(np.eye(3), held - [0, 0, spec.height / 2])),
                    fingers=move.collision.fingers[0])
     path = np.concatenate([s.q for s in move.segments])
@@ -479,8 +477,8 @@ def test_a_learned_controller_stops_before_a_command_into_the_right_arm(state_en
 def test_the_goal_pose_is_found_from_an_arm_left_contorted(state_env):
     """The moves' goal configuration (the hand down at the pre-insertion pose) is solved for from the measured joints;
     where the solver finds none from there, from the rest configuration."""
-    from policy_composer.policies.arm import SceneGeometry
-    from policy_composer.tasks.gear_kinematics import JOINT_HIGH, JOINT_LOW, LeftArmIK
+    from policy_composer.tasks.gear_kinematics import LeftArmIK
+    from policy_composer.tasks.panda import JOINT_HIGH, JOINT_LOW
 
     state_env.reset(seed=0)
     ik, scene = LeftArmIK(state_env), SceneGeometry(state_env)

@@ -7,7 +7,7 @@ import pytest
 import torch
 from mani_skill.utils.structs.pose import Pose
 
-from policy_composer.tasks.peg_insertion_side import CAMERA_NAMES, PREDICATES, make_env, predicates, strict_success
+from policy_composer.tasks.peg_insertion_side.env import CAMERA_NAMES, PREDICATES, make_env, predicates, strict_success
 
 
 @pytest.fixture(scope="module")

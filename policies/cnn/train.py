@@ -31,7 +31,7 @@ from policy_composer.learning.snapshot import Snapshots
 from policy_composer.learning.training import adam, fit_epochs
 from policy_composer.policies.cnn.configuration_cnn import CORRECTIONS, DEMONSTRATIONS, PROPRIOCEPTION, CNNPolicyConfig
 from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
-from policy_composer.tasks.gear_kinematics import PandaForwardKinematics
+from policy_composer.tasks.panda import PandaForwardKinematics
 
 
 def policy_state(state16: torch.Tensor, config: CNNPolicyConfig) -> torch.Tensor:

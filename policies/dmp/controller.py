@@ -23,7 +23,7 @@ from policy_composer.data.atomic import check_replaceable, replacing_folder, saf
 from policy_composer.learning.checkpoint import CheckpointError, check_finite
 from policy_composer.policies.arm import Outcome, Segment, run_activation
 from policy_composer.policies.dmp.configuration_dmp import DMPConfig
-from policy_composer.policies.planning import VELOCITY_LIMIT, time_parameterize
+from policy_composer.policies.mp.planning import VELOCITY_LIMIT, time_parameterize
 from policy_composer.policies.subtasks import SUBTASKS, TASK_SEQUENCE, SubtaskController, Waypoint
 
 DMP_FILES = ("dmp.safetensors", "dmp.json")

@@ -17,7 +17,7 @@ import sapien
 
 from policy_composer.policies.arm import Segment, np0
 from policy_composer.policies.mp.configuration_mp import MPConfig
-from policy_composer.policies.planning import (
+from policy_composer.policies.mp.planning import (
     HeldObject,
     PlanningError,
     SceneCollisionModel,
@@ -36,14 +36,12 @@ class MotionPlanningController(SubtaskController):
     def __init__(self, env, subtask, config: MPConfig | None = None, **kwargs):
         super().__init__(env, subtask, **kwargs)
         self.config = config or MPConfig()
-        self.collision = SceneCollisionModel()
+        self.collision = SceneCollisionModel(self.ik.base())
 
     def connect(self, obs, waypoints: list[Waypoint], seed):
         finger = float(np0(obs["extra"]["state"])[7] / 2)
-        module = self.scene.module_pose()
-        self.collision.set_scene(np0(self.env.right_arm.robot.get_qpos()), sapien.Pose(np0(module.p), np0(module.q)),
-                                 self.scene.spec, held=self.nominal_held_gear() if self.subtask.holds_gear else None,
-                                 fingers=finger)
+        self.collision.set_scene(self.scene.obstacles(),
+                                 held=self.nominal_held_gear() if self.subtask.holds_gear else None, fingers=finger)
         q, segments = self.q9(obs), []
         for wp in waypoints:
             if wp.kind == "free":

@@ -1,10 +1,10 @@
-"""Joint-space motion planning for the left Panda: OMPL RRT-Connect with collision checks by pinocchio + coal.
+"""Joint-space motion planning for a Panda: OMPL RRT-Connect with collision checks by pinocchio + coal.
 
 The collision model is the Panda's own (ManiSkill's URDF collision meshes, self-collision pairs filtered by
-its SRDF) plus the scene as the planner sees it at planning time: the table, the right arm at its current
-configuration (its link meshes placed by forward kinematics), the peg module it holds, and, while carrying,
-the gear attached to the hand. A check takes tens of microseconds, so RRT-Connect with path simplification
-plans in well under a second. Paths are then time-parameterised to the Panda's joint velocity limits.
+its SRDF) plus the scene as the task says the planner sees it at planning time (`Obstacle`s: the table, another arm
+at its current configuration, what the task's scene holds) and, while carrying, the object attached to the hand. A
+check takes tens of microseconds, so RRT-Connect with path simplification plans in well under a second. Paths are
+then time-parameterised to the Panda's joint velocity limits.
 
 A plan is a function of its problem alone: OMPL's random streams restart from one seed for every plan, and the
 planner's budget is a number of collision checks, not seconds, so neither earlier plans nor a busy CPU change it.
@@ -13,22 +13,22 @@ planner's budget is a number of collision checks, not seconds, so neither earlie
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache
 
 import coal
 import numpy as np
 import pinocchio as pin
+from ompl import base as ob
+from ompl import geometric as og
+from ompl import util as ou
 
 from policy_composer.policies.mp.configuration_mp import MPConfig
-from policy_composer.tasks.gear_assembly import LEFT_BASE, RIGHT_BASE
-from policy_composer.tasks.gear_kinematics import JOINT_HIGH, JOINT_LOW, PANDA_DIR
-from policy_composer.tasks.gear_kinematics import PANDA_SRDF as SRDF
-from policy_composer.tasks.gear_kinematics import PANDA_URDF as URDF
+from policy_composer.tasks.panda import JOINT_HIGH, JOINT_LOW, PANDA_DIR, PANDA_SRDF, PANDA_URDF, VELOCITY_LIMIT
 
-# Franka Panda joint velocity limits (rad/s), as in the URDF.
-VELOCITY_LIMIT = np.array([2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61])
+__all__ = ["VELOCITY_LIMIT", "HeldObject", "Obstacle", "PlanningError", "SceneCollisionModel", "panda_obstacles",
+           "plan_rrt_connect", "se3", "table_obstacle", "time_parameterize"]
+
 TABLE_HALF = (1.2, 1.2, 0.05)  # a slab whose top is the table surface (z = 0)
-
-
 OMPL_SEED = 1  # OMPL rejects 0
 
 
@@ -36,31 +36,63 @@ class PlanningError(RuntimeError):
     """No collision-free path was found (or the start or goal is in collision)."""
 
 
-def _se3(pose) -> pin.SE3:
+def se3(pose) -> pin.SE3:
     """sapien.Pose -> pin.SE3."""
     return pin.SE3(pin.Quaternion(float(pose.q[0]), *map(float, pose.q[1:])).matrix(), np.asarray(pose.p, dtype=float))
 
 
 @dataclass
 class HeldObject:
-    """A cylinder attached to the hand (the held gear), pose in the hand link frame."""
+    """A cylinder attached to the hand (a held gear or peg), pose in the hand link frame."""
 
     radius: float
     height: float
     hand_to_object: pin.SE3
 
 
-class SceneCollisionModel:
-    """The left Panda and its scene, in the left arm's base frame."""
+@dataclass
+class Obstacle:
+    """A shape of the scene the arm must not touch, placed in the world."""
 
-    def __init__(self):
-        self.model = pin.buildModelFromUrdf(str(URDF))
-        self._robot_geom = pin.buildGeomFromUrdf(self.model, str(URDF), pin.GeometryType.COLLISION,
-                                                 package_dirs=[str(PANDA_DIR)])
+    name: str
+    shape: coal.CollisionGeometry
+    pose: pin.SE3
+
+
+def table_obstacle() -> Obstacle:
+    top = pin.SE3(np.eye(3), np.array([0, 0, -TABLE_HALF[2]]))
+    return Obstacle("table", coal.Box(*(2 * np.array(TABLE_HALF))), top)
+
+
+@cache
+def _panda_geometry() -> tuple[pin.Model, pin.GeometryModel]:
+    model = pin.buildModelFromUrdf(str(PANDA_URDF))
+    geom = pin.buildGeomFromUrdf(model, str(PANDA_URDF), pin.GeometryType.COLLISION, package_dirs=[str(PANDA_DIR)])
+    return model, geom
+
+
+def panda_obstacles(qpos: np.ndarray, base, prefix: str) -> list[Obstacle]:
+    """Another Panda where it stands (`qpos`: 9 values, `base`: its base's world pose), its collision meshes placed by
+    forward kinematics."""
+    model, geom = _panda_geometry()
+    data, gdata = model.createData(), pin.GeometryData(geom)
+    q = pin.neutral(model)
+    q[:9] = qpos
+    pin.framesForwardKinematics(model, data, q)
+    pin.updateGeometryPlacements(model, data, geom, gdata)
+    world = se3(base)
+    return [Obstacle(f"{prefix}{g.name}", g.geometry, world * gdata.oMg[i]) for i, g in enumerate(geom.geometryObjects)]
+
+
+class SceneCollisionModel:
+    """The planned Panda and its scene, in the arm's base frame (`base`: its world pose)."""
+
+    def __init__(self, base):
+        self.model, self._robot_geom = _panda_geometry()
+        self._robot_geom = self._robot_geom.copy()
         self._robot_geom.addAllCollisionPairs()
-        pin.removeCollisionPairsFromXML(self.model, self._robot_geom, SRDF.read_text())
-        self._fk_data = self.model.createData()
-        self._fk_gdata = pin.GeometryData(self._robot_geom)
+        pin.removeCollisionPairsFromXML(self.model, self._robot_geom, PANDA_SRDF.read_text())
+        self.to_base = se3(base).inverse()
         self.hand_joint = self.model.getJointId("panda_joint7")
         self.geom = self._robot_geom
         self.data = self.model.createData()
@@ -71,44 +103,19 @@ class SceneCollisionModel:
     def _robot_link_geoms(self) -> list[int]:
         return [i for i, g in enumerate(self._robot_geom.geometryObjects) if "link0" not in g.name]
 
-    def set_scene(self, right_qpos: np.ndarray, peg_module_pose, spec, table: bool = True,
-                  held: HeldObject | None = None, fingers: float = 0.04) -> None:
-        """Place the obstacles for the next plans (world poses as sapien.Pose; right_qpos: 9 values; spec: the
-        env's GearSpec, for the peg module's shape; no peg module where `peg_module_pose` is None)."""
+    def set_scene(self, obstacles: list[Obstacle], held: HeldObject | None = None, fingers: float = 0.04) -> None:
+        """Place the obstacles for the next plans, and the object the hand holds (none where `held` is None)."""
         geom = self._robot_geom.copy()
-        to_left = _se3(LEFT_BASE).inverse()
-        obstacles = []
-
-        def add(name, shape, world: pin.SE3):
-            obstacles.append(geom.addGeometryObject(pin.GeometryObject(name, 0, to_left * world, shape)))
-
-        if table:
-            add("table", coal.Box(*(2 * np.array(TABLE_HALF))), pin.SE3(np.eye(3), np.array([0, 0, -TABLE_HALF[2]])))
-        # The right arm where it stands: its collision meshes placed by forward kinematics.
-        q = pin.neutral(self.model)
-        q[:9] = right_qpos
-        pin.framesForwardKinematics(self.model, self._fk_data, q)
-        pin.updateGeometryPlacements(self.model, self._fk_data, self._robot_geom, self._fk_gdata)
-        right_base = _se3(RIGHT_BASE)
-        for i, g in enumerate(self._robot_geom.geometryObjects):
-            add(f"right_{g.name}", g.geometry, right_base * self._fk_gdata.oMg[i])
-        # The peg module the right hand holds (see policy_composer.tasks.gear_geometry.build_peg_module).
-        if peg_module_pose is not None:
-            module = _se3(peg_module_pose)
-            hx, hy, hz = spec.plate_half_size
-            add("plate", coal.Box(2 * hx, 2 * hy, 2 * hz),
-                module * pin.SE3(np.eye(3), np.array([-spec.peg_offset - 0.03 + hx, 0.0, -hz])))
-            add("peg", coal.Cylinder(spec.peg_radius, spec.peg_height),
-                module * pin.SE3(np.eye(3), np.array([0.0, 0.0, spec.peg_height / 2])))
-
+        placed = [geom.addGeometryObject(pin.GeometryObject(o.name, 0, self.to_base * o.pose, o.shape))
+                  for o in obstacles]
         robot = self._robot_link_geoms()
-        for o in obstacles:
+        for o in placed:
             for r in robot:
                 geom.addCollisionPair(pin.CollisionPair(r, o))
         if held is not None:
             gid = geom.addGeometryObject(pin.GeometryObject("held", self.hand_joint, held.hand_to_object,
                                                             coal.Cylinder(held.radius, held.height)))
-            for o in obstacles:
+            for o in placed:
                 geom.addCollisionPair(pin.CollisionPair(gid, o))
             for r in robot:  # the held object may touch the hand and fingers, not the rest of the arm
                 name = self._robot_geom.geometryObjects[r].name
@@ -134,8 +141,6 @@ class SceneCollisionModel:
 def _restart_ompl_random_streams() -> None:
     """Reseed OMPL's seed generator, so the random streams of the next plan's sampler and simplifier are those of
     every plan. (After the first draw OMPL restarts from its first seed and logs an error; silence it.)"""
-    from ompl import util as ou
-
     ou.setLogLevel(ou.LogLevel.LOG_NONE)
     ou.RNG.setSeed(OMPL_SEED)
     ou.setLogLevel(ou.LogLevel.LOG_ERROR)
@@ -145,9 +150,6 @@ def plan_rrt_connect(collision: SceneCollisionModel, q_start: np.ndarray, q_goal
                      max_checks: int = MPConfig.plan_checks) -> np.ndarray:
     """A simplified collision-free joint path (K, 7) from q_start to q_goal, by OMPL's RRT-Connect, or a
     PlanningError if none is found within `max_checks` collision checks."""
-    from ompl import base as ob
-    from ompl import geometric as og
-
     for label, q in (("start", q_start), ("goal", q_goal)):
         if np.any(q < JOINT_LOW - 1e-6) or np.any(q > JOINT_HIGH + 1e-6):
             raise PlanningError(f"the {label} configuration {np.round(q, 3)} is outside the Panda's joint limits")
