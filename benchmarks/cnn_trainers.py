@@ -43,7 +43,7 @@ def main() -> None:
     parser.add_argument("--one-camera", action="store_true", help="train lerobot-train on a one-camera copy")
     args = parser.parse_args()
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
-    from policy_composer.tasks.spec import INSERTION_WINDOWS
+    from policy_composer.tasks.gear_assembly.spec import INSERTION_WINDOWS
 
     frames = json.loads((args.dataset / "meta" / "info.json").read_text())["total_frames"]
     batch = 120

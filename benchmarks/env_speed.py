@@ -15,7 +15,7 @@ import gymnasium as gym
 import mani_skill.envs  # noqa: F401
 import torch
 
-import policy_composer.tasks.gear_assembly  # noqa: F401  (registers GearAssembly-v1)
+import policy_composer.tasks.gear_assembly.env  # noqa: F401  (registers GearAssembly-v1)
 
 
 def steps_per_second(env, action_fn, steps: int) -> float:

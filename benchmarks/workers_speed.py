@@ -29,7 +29,7 @@ def record(recipe: str, root: Path, episodes: int, resolution: int, workers: int
     from policy_composer.app.record import record_recipe
     from policy_composer.data.recipes import load_recipe
     from policy_composer.policies.library import LibrarySources
-    from policy_composer.tasks.spec import EnvSettings
+    from policy_composer.tasks.gear_assembly.spec import EnvSettings
 
     sidecar = record_recipe(replace(load_recipe(recipe), **changes), root, episodes=episodes,
                             settings=EnvSettings(resolution=resolution), progress=False, sources=LibrarySources(),

@@ -1,18 +1,18 @@
-"""Controllers of GearAssembly-v1's left arm: the shared outcome, safety and scene-geometry logic.
+"""Controllers of a task's arm: the shared outcome, safety and guard logic.
 
-A controller here commands the left arm's 7 joint targets and its gripper and leaves the right arm at its
-targets. Every command passes a safety check against the Panda's joint position and velocity limits; a
-command that would break them stops the controller "for safety" (the paper's `*`) and holds the arm.
+A controller here commands the 7 joint targets and the gripper of the arm its task names (`TaskDescription.arm`)
+and leaves every other joint at its targets (`TaskDescription.hold_action`). Every command passes a safety check
+against the Panda's joint position and velocity limits; a command that would break them stops the controller "for
+safety" (the paper's `*`) and holds the arm.
 
 A controller serving a subtask also has the subtask guard its gripper: a release the subtask would not survive
-(the gear let go on top of the peg instead of on it) is not sent; the controller backs off to where the subtask
-began, still holding the gear, and fails, so the selector can give the subtask to another controller. It does the
-same when the subtask says it is off course (an insertion that leads the gear away from the peg, or ends with the
-gear still in the hand beside it).
+(a gear let go on top of the peg instead of on it) is not sent; the controller backs off to where the subtask
+began, still holding the part, and fails, so the selector can give the subtask to another controller. It does the
+same when the subtask says it is off course.
 
 Initiation sets, terminations and guards read the task's predicates through the controller's `senses` (see
 policies/senses.py: classifiers of the cameras and joints, or the simulator's truth for recording and the oracle's
-figures) and the scene as the robot knows it (`SceneGeometry`: its own kinematics); the controllers' inputs stay
+figures) and the scene as the robot knows it (the task's `Scene`: its own kinematics); the controllers' inputs stay
 their own (joint angles for planning and DMPs, camera pixels for the CNN).
 """
 
@@ -21,21 +21,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import Enum
 
-import coal
 import numpy as np
-import pinocchio as pin
-import sapien
 import torch
 
 from policy_composer.policies.base import Controller
-from policy_composer.policies.mp.planning import Obstacle, panda_obstacles, se3, table_obstacle
 from policy_composer.policies.senses import OracleSenses, Percept, Senses
-from policy_composer.tasks.gear_assembly import CARRY_CLEARANCE
-from policy_composer.tasks.gear_kinematics import RIGHT_BASE
-from policy_composer.tasks.panda import JOINT_HIGH, JOINT_LOW, VELOCITY_LIMIT
+from policy_composer.tasks.base import np0
+from policy_composer.tasks.panda import GRIPPER_CLOSED, GRIPPER_OPEN, JOINT_HIGH, JOINT_LOW, VELOCITY_LIMIT, ArmIK
+from policy_composer.tasks.registry import task_of
 
-GRIPPER_OPEN, GRIPPER_CLOSED = 1.0, -1.0
-RELEASE_HEIGHT = 0.012  # gear bottom above the plate when the gripper opens (m)
 # Steps a controller did not plan (a learned policy's, the way into a back-off) are limited to this fraction of the
 # joint velocity limits.
 STEP_SPEED_MARGIN = 0.9
@@ -57,88 +51,19 @@ class Segment:
     settle: int = 4
 
 
-def np0(x: torch.Tensor) -> np.ndarray:
-    """Env 0 of a batched tensor, as float64 numpy."""
-    return x[0].detach().cpu().numpy().astype(np.float64)
-
-
-class SceneGeometry:
-    """Where things are as the robot knows them (world frame): its hands from its joints, the peg module from the right
-    hand that holds it and the hand-over's calibration (`module_in_hand`), the gear and peg from their drawings
-    (`gear_spec`). The one thing given from the simulator is the gear's position for the pick-up's planner
-    (`planner_gear`), with `gear_noise` (m, per axis in the table's plane) where the figures ask for it."""
-
-    def __init__(self, env):
-        self.env = env.unwrapped if hasattr(env, "unwrapped") else env
-        self.spec = self.env.gear_spec
-        self.grasp_height = self.spec.grasp_height
-        self.gear_noise = 0.0
-        self.rng = np.random.default_rng()
-
-    def seed(self, seed: int | None) -> None:
-        """Draw the planner input's noise of an activation from `seed`."""
-        self.rng = np.random.default_rng(seed)
-
-    def module_pose(self):
-        """The peg module's pose: the right hand's (forward kinematics) times the calibrated grasp on the module."""
-        return self.env.right_arm.tcp.pose * self.env.module_in_hand
-
-    def _module_matrix(self) -> np.ndarray:
-        return np0(self.module_pose().to_transformation_matrix())
-
-    def finger_dir(self) -> np.ndarray:
-        """The peg module's long axis, level: the controllers grasp across it."""
-        d = self._module_matrix()[:3, 0].copy()
-        d[2] = 0.0
-        return d / np.linalg.norm(d)
-
-    def planner_gear(self) -> np.ndarray:
-        """The gear's position as the pick-up's planner is given it (the task's privileged planner input)."""
-        return self.env.planner_gear_position(self.gear_noise, self.rng)
-
-    def tcp(self) -> np.ndarray:
-        return np0(self.env.left_arm.tcp.pose.p)
-
-    def peg_top(self) -> np.ndarray:
-        m = self._module_matrix()
-        return m[:3, 3] + m[:3, 2] * self.spec.peg_height
-
-    def held_gear_height(self) -> float:
-        """How high a gear held at the nominal grasp has its bottom above the peg module's plate (m)."""
-        return float(self.tcp()[2] - self.grasp_height - (self.peg_top()[2] - self.spec.peg_height))
-
-    def pre_insertion_tcp(self) -> np.ndarray:
-        """TCP position that puts a centred gear's bottom CARRY_CLEARANCE above the peg top."""
-        return self.peg_top() + [0, 0, CARRY_CLEARANCE + self.grasp_height]
-
-    def obstacles(self, table: bool = True, module: bool = True) -> list[Obstacle]:
-        """The scene as the left arm's planner knows it: the table, the right arm where its joints say it stands, and
-        the peg module it holds (see policy_composer.tasks.gear_geometry.build_peg_module)."""
-        out = [table_obstacle()] if table else []
-        out += panda_obstacles(np0(self.env.right_arm.robot.get_qpos()), RIGHT_BASE, "right_")
-        if module:
-            spec, pose = self.spec, self.module_pose()
-            world = se3(sapien.Pose(np0(pose.p), np0(pose.q)))
-            hx, hy, hz = spec.plate_half_size
-            out += [Obstacle("plate", coal.Box(2 * hx, 2 * hy, 2 * hz),
-                             world * pin.SE3(np.eye(3), np.array([-spec.peg_offset - 0.03 + hx, 0.0, -hz]))),
-                    Obstacle("peg", coal.Cylinder(spec.peg_radius, spec.peg_height),
-                             world * pin.SE3(np.eye(3), np.array([0.0, 0.0, spec.peg_height / 2])))]
-        return out
-
-
-class LeftArmController(Controller):
-    """Base of the gear controllers: outcome bookkeeping, the safety check, the flat 16-D action."""
+class ArmController(Controller):
+    """Base of the controllers of a task's arm: outcome bookkeeping, the safety check, the task's flat action."""
 
     obs_keys = ("extra.state",)
     action_kind = "joint_targets"
-    subtask = None  # the policy_composer.policies.subtasks.Subtask it serves: guards the release, says how to back off
-    ik = None  # a LeftArmIK (subclasses that serve a subtask set it)
+    subtask = None  # the task's Subtask it serves: guards the release, says how to back off
 
     def __init__(self, env):
         self.env = env.unwrapped if hasattr(env, "unwrapped") else env
+        self.task = task_of(self.env)
         self.rate_hz = float(self.env.control_freq)
-        self.scene = SceneGeometry(self.env)
+        self.ik = ArmIK(self.env, self.task.arm)
+        self.scene = self.task.scene(self.env)
         self.senses: Senses = OracleSenses(self.env)  # build_library gives its controllers one to share
         self.outcome = Outcome.DONE
         self.reason = ""
@@ -161,8 +86,8 @@ class LeftArmController(Controller):
     def reset(self, obs, seed: int | None = None) -> None:
         self.outcome, self.reason = Outcome.RUNNING, ""
         self.scene.seed(seed)
-        self._hold = np0(self.env.hold_action())
-        self._last = self.left_qpos(obs)
+        self._hold = np0(self.task.hold_action(self.env))
+        self._last = self.arm_qpos(obs)
         self._gripper = float(self._hold[7])
         self._back_off: list[np.ndarray] | None = None  # joint targets still to go, once backing off
         self._back_off_reason = ""
@@ -208,11 +133,11 @@ class LeftArmController(Controller):
                    or self.subtask.off_course(percept, cmd is None))
             if not why:
                 return cmd
-            path = self.subtask.back_off(self.ik, self.scene, np0(self.env.left_arm.robot.get_qpos()))
+            path = self.subtask.back_off(self.ik, self.scene, np0(self.ik.arm.robot.get_qpos()))
             # The path starts at the measured joints, which lag the last command where the arm pushed against
             # something: the targets first go back to them at a safe speed instead of jumping.
             self._back_off = [*ramp(self._last, path[0], self.rate_hz)[:-1], *path] if len(path) else []
-            self._back_off_reason = f"{'backed off' if self._back_off else 'kept the gear (no way back)'}: {why}"
+            self._back_off_reason = f"{'backed off' if self._back_off else 'kept the part (no way back)'}: {why}"
         return (self._back_off.pop(0), GRIPPER_CLOSED) if self._back_off else None
 
     def safety_violation(self, q: np.ndarray) -> str:
@@ -235,11 +160,12 @@ class LeftArmController(Controller):
 
     # ------------------------------------------------------------ helpers
     @staticmethod
-    def left_qpos(obs) -> np.ndarray:
+    def arm_qpos(obs) -> np.ndarray:
+        """The driven arm's 7 joint angles (the first entries of observation.state)."""
         return np0(obs["extra"]["state"])[:7]
 
     def describe(self, obs) -> str:
-        return self.senses(obs).why("gear_grasped", "gear_lifted", "gear_at_peg", "gear_seated")
+        return self.senses(obs).why(*self.task.progress)
 
 
 def ramp(q_from: np.ndarray, q_to: np.ndarray, rate_hz: float) -> np.ndarray:
@@ -254,15 +180,16 @@ def run_activation(env, controller: Controller, obs, seed: int | None = None, ma
     """Start `controller` from obs and step the env until it terminates (or max_steps); returns the last observation.
     The controller's `outcome` and `reason` say how the activation ended."""
     u = env.unwrapped
+    task = task_of(u)
     controller.start(obs, seed=seed)
     for _ in range(max_steps):
         if controller.done(obs):
             break
-        obs, *_ = env.step(u.flat_to_dict_action(controller.act(obs)))
+        obs, *_ = env.step(task.env_action(u, controller.act(obs)))
     return obs
 
 
-class ScriptedController(LeftArmController):
+class ScriptedController(ArmController):
     """A controller that plans its whole activation at the start as segments of joint targets (MP, DMP)."""
 
     def plan(self, obs, seed: int | None) -> list[Segment]:

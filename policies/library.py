@@ -1,4 +1,4 @@
-"""The controller library of GearAssembly-v1: every controller by name, built from its trained models.
+"""The controller library of a task: every controller by name, built from its trained models.
 
 Names are `KIND_SUBTASK` (mp_pick, dmp_move, cnn_insert, ...) for the registered kinds (`registry`), plus one
 controller per LeRobot checkpoint the user brings. The selector, Table I and the dataset recipes all build their
@@ -13,6 +13,8 @@ from pathlib import Path
 from policy_composer.policies.base import Controller
 from policy_composer.policies.registry import LibraryError, get_kind, kind_of, kinds
 from policy_composer.policies.senses import OracleSenses, Senses
+from policy_composer.tasks.base import Subtask, TaskDescription
+from policy_composer.tasks.registry import DEFAULT_TASK, get_task
 
 # Where a kind's trained model is unless LibrarySources.models says otherwise: MODELS/KIND (the training commands'
 # default output).
@@ -41,25 +43,27 @@ class LeRobotSource:
 
 @dataclass(frozen=True)
 class LibrarySources:
-    """Where the learned controllers' models are, and how the planned ones perceive the gear."""
+    """The task, where the learned controllers' models are, and how the planned ones perceive the scene."""
 
     models: dict[str, str] = field(default_factory=dict)  # kind name -> model path (default: MODELS/KIND)
     lerobot: tuple[LeRobotSource, ...] = field(default_factory=tuple)
     max_grasp_offset: float = 0.012  # the pick-up's perception error along the fingers (m)
-    gear_noise: float = 0.0  # noise on the planner's given gear position, per axis in the table's plane (m)
-    insertion: str = "feel"  # how the planned insertions go down the peg: a key of subtasks.INSERTIONS
+    gear_noise: float = 0.0  # noise on the planner's one privileged input (the part's position), per axis (m)
+    insertion: str = "feel"  # how the planned insertions go: a key of the task's `insertions`
+    task: str = DEFAULT_TASK
 
     def __post_init__(self):
-        from policy_composer.policies.subtasks import INSERTIONS
+        if self.insertion not in self.description.insertions:
+            raise LibraryError(f"no insertion {self.insertion!r}: choose one of "
+                               f"{', '.join(self.description.insertions)}")
 
-        if self.insertion not in INSERTIONS:
-            raise LibraryError(f"no insertion {self.insertion!r}: choose one of {', '.join(INSERTIONS)}")
+    @property
+    def description(self) -> TaskDescription:
+        return get_task(self.task)
 
-    def subtask(self, name: str):
+    def subtask(self, name: str) -> Subtask:
         """The subtask `name` as the library's controllers serve it (the insertion as `insertion` says)."""
-        from policy_composer.policies.subtasks import INSERTIONS, SUBTASKS
-
-        return INSERTIONS[self.insertion] if name == "insert" else SUBTASKS[name]
+        return self.description.subtask(name, self.insertion)
 
     def model_path(self, kind: str) -> str | None:
         """Where the kind's trained model is (None: it has none)."""
@@ -67,13 +71,16 @@ class LibrarySources:
 
 
 def all_names(sources: LibrarySources | None = None) -> tuple[str, ...]:
-    """Every controller of the registered kinds, then the LeRobot checkpoints'."""
-    lerobot = tuple(s.controller_name for s in sources.lerobot) if sources else ()
-    return tuple(n for k in kinds().values() for n in k.controller_names) + lerobot
+    """Every controller of the registered kinds for the task's subtasks, then the LeRobot checkpoints'."""
+    sources = sources or LibrarySources()
+    lerobot = tuple(s.controller_name for s in sources.lerobot)
+    return tuple(n for k in kinds().values() for n in names_of_kind(k.name, sources.task)) + lerobot
 
 
-def names_of_kind(kind: str) -> tuple[str, ...]:
-    return get_kind(kind).controller_names
+def names_of_kind(kind: str, task: str = DEFAULT_TASK) -> tuple[str, ...]:
+    """The kind's controllers for the subtasks the task has."""
+    kind = get_kind(kind)
+    return tuple(f"{kind.name}_{s}" for s in kind.subtasks if s in get_task(task).subtasks)
 
 
 class _Models:
@@ -165,5 +172,5 @@ def build_library(env, names=None, sources: LibrarySources | None = None,
         library[name] = kind.function("build")(env, subtask, models[kind], kind.config(), sources.max_grasp_offset)
     for controller in library.values():
         controller.senses = senses
-        controller.scene.gear_noise = sources.gear_noise
+        controller.scene.planner_noise = sources.gear_noise
     return library

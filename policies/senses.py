@@ -1,5 +1,5 @@
-"""What the controllers know of the task's state: the task's predicates (gear grasped, on the peg, seated, ...) at one
-observation, from which every initiation set, termination and guard of the library is made.
+"""What the controllers know of the task's state: the task's predicates (a part grasped, at the hole, inserted, ...)
+at one observation, from which every initiation set, termination and guard of the library is made.
 
 A `Senses` turns an observation into a `Percept`. The library's controllers are given one: `LearnedSenses`
 (selector/predicates.py), classifiers of the cameras and joints trained on the recordings' labels, as a robot would
@@ -9,28 +9,12 @@ datasets and for the oracle's side of the figures).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Protocol
 
-from policy_composer.tasks.spec import PREDICATES
+from policy_composer.tasks.base import THRESHOLD, Percept
+from policy_composer.tasks.registry import task_of
 
-THRESHOLD = 0.5  # a predicate holds where its probability is at least this
-
-
-@dataclass(frozen=True)
-class Percept:
-    """Each predicate's probability at one observation, and where they came from ("learned" or "oracle")."""
-
-    probabilities: dict[str, float]
-    source: str
-
-    def __getitem__(self, name: str) -> bool:
-        return self.probabilities[name] >= THRESHOLD
-
-    def why(self, *names: str) -> str:
-        """The named predicates as the decision log states them: `gear_on_peg=no (learned p=0.12)`."""
-        return ", ".join(f"{n}={'yes' if self[n] else 'no'} ({self.source} p={self.probabilities[n]:.2f})"
-                         for n in names)
+__all__ = ["THRESHOLD", "CachedSenses", "OracleSenses", "Percept", "Senses"]
 
 
 class Senses(Protocol):
@@ -58,14 +42,15 @@ class CachedSenses:
 
 
 class OracleSenses(CachedSenses):
-    """The predicates from the simulator's truth (`GearAssemblyEnv.predicates`): privileged, not a robot's."""
+    """The predicates from the simulator's truth (the task's `truth`): privileged, not a robot's."""
 
     source = "oracle"
 
     def __init__(self, env):
         super().__init__()
         self.env = env.unwrapped if hasattr(env, "unwrapped") else env
+        self.task = task_of(self.env)
 
     def perceive(self, obs) -> Percept:
-        flags = self.env.predicates()
-        return Percept({name: float(flags[name][0]) for name in PREDICATES}, self.source)
+        flags = self.task.truth(self.env)
+        return Percept({name: float(flags[name][0]) for name in self.task.predicates}, self.source)

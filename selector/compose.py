@@ -19,7 +19,7 @@ from policy_composer.policies.base import Controller
 from policy_composer.policies.mp.planning import PlanningError
 from policy_composer.selector.configuration import ComposeConfig
 from policy_composer.selector.world_model import GearWorldModel
-from policy_composer.tasks.gear_assembly import gear_whereabouts
+from policy_composer.tasks.registry import task_of
 
 
 @dataclass
@@ -112,6 +112,7 @@ def compose_episode(env, library: dict[str, Controller], world: GearWorldModel, 
                          f"(the world model has {list(world.dynamics)})")
     selector = world.selector(config.horizon, config.samples, seed=seed, controllers=names)
     u = env.unwrapped
+    task = task_of(u)
     obs, info = env.reset(seed=seed)
     result = ComposedEpisode(seed, reached=int(info["stage"][0]))
     running: Controller | None = None
@@ -147,14 +148,14 @@ def compose_episode(env, library: dict[str, Controller], world: GearWorldModel, 
             if running is None:
                 break
             current = result.activations[-1]
-        obs, _, _, _, info = env.step(u.flat_to_dict_action(running.act(obs)))
+        obs, _, _, _, info = env.step(task.env_action(u, running.act(obs)))
         current.steps += 1
         result.steps = step + 1
-        result.reached = max(result.reached, int(info["stage"][0]))
+        result.reached = max(result.reached, task.stage(info))
         if on_frame is not None:
             on_frame(obs, running.name, world.score_observation(obs))
     # The scorer's verdict, from the info the last step (or the reset) gave.
-    result.success, result.gear = bool(info["success"][0]), gear_whereabouts(info)
+    result.success, result.gear = bool(info["success"][0]), task.whereabouts(info)
     if running is None:
         result.ended = "task done" if result.success else "nothing applicable"
     else:

@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from policy_composer.learning.config import BACKBONES, TrainingConfig, check_options, option
-from policy_composer.tasks.spec import CAMERA_NAMES, PREDICATES
+from policy_composer.tasks.gear_assembly.spec import CAMERA_NAMES, PREDICATES
 
 GOAL_SCORES = ("image", "latent")  # what the selector's goal score reads: each prediction decoded, or the latent
 # Where the library's controllers have the task's predicates from: classifiers of the cameras and joints, or the

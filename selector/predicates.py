@@ -1,5 +1,5 @@
 """The task's predicates as a robot has them: one binary classifier per predicate of the cameras it sees and the
-joint state, trained on the labels the recordings keep from the simulator (see tasks/spec.py PREDICATES), judged on
+joint state, trained on the labels the recordings keep from the simulator (the task's PREDICATES), judged on
 held-out episodes, and used by the library's controllers for their initiation sets, terminations and guards
 (`LearnedSenses`). They live in the world model's folder beside the goal scores:
 
@@ -24,10 +24,10 @@ from policy_composer.learning.layers import image_encoder
 from policy_composer.learning.training import adam, fit_epochs
 from policy_composer.policies.senses import THRESHOLD, CachedSenses, Percept
 from policy_composer.selector.configuration import PredicateConfig
-from policy_composer.tasks.gear_assembly import GRASP_OFFSET_MAX, PRE_INSERT_RADIUS
-from policy_composer.tasks.gear_geometry import GearSpec
-from policy_composer.tasks.gear_kinematics import HandToPeg
-from policy_composer.tasks.spec import PREDICATES, STATE_NAMES
+from policy_composer.tasks.gear_assembly.env import GRASP_OFFSET_MAX, PRE_INSERT_RADIUS
+from policy_composer.tasks.gear_assembly.geometry import GearSpec
+from policy_composer.tasks.gear_assembly.kinematics import HandToPeg
+from policy_composer.tasks.gear_assembly.spec import PREDICATES, STATE_NAMES
 
 TRAIN_HINT = "policy-composer train predicates"
 HELD_OUT_EVERY = 5  # every fifth episode of each dataset is held out of the training, for the figures

@@ -31,7 +31,7 @@ from policy_composer.selector.dynamics import train_dynamics
 from policy_composer.selector.goal_score import train_goal_score, train_latent_goal_score
 from policy_composer.selector.predicates import held_out, train_predicates
 from policy_composer.selector.vae import VAE, load_vae, train_vae
-from policy_composer.tasks.spec import PREDICATES
+from policy_composer.tasks.gear_assembly.spec import PREDICATES
 
 
 def demo_split(root: str | Path, split: str) -> list[int]:

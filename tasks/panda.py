@@ -5,6 +5,7 @@ they know of the scene is the task's own."""
 
 from __future__ import annotations
 
+from functools import cache
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +13,9 @@ import pinocchio as pin
 import sapien
 from mani_skill import PACKAGE_ASSET_DIR
 from transforms3d.quaternions import mat2quat
+
+from policy_composer.tasks.base import PlanningError, Waypoint
+from policy_composer.tasks.scene import Obstacle
 
 PANDA_DIR = Path(PACKAGE_ASSET_DIR) / "robots" / "panda"
 PANDA_URDF, PANDA_SRDF = PANDA_DIR / "panda_v2.urdf", PANDA_DIR / "panda_v2.srdf"
@@ -21,6 +25,7 @@ ARM_MASK = np.array([1] * 7 + [0, 0], dtype=np.int32)  # solve for the 7 arm joi
 JOINT_LOW = np.array([-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973])
 JOINT_HIGH = np.array([2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973])
 VELOCITY_LIMIT = np.array([2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61])
+GRIPPER_OPEN, GRIPPER_CLOSED = 1.0, -1.0  # the gripper's normalised commands
 # A configuration the solvers start again from where the measured one leads nowhere (arm joints and fingers).
 REST_QPOS = np.array([0.0, np.pi / 8, 0.0, -np.pi * 5 / 8, 0.0, np.pi * 3 / 4, np.pi / 4, 0.04, 0.04])
 
@@ -107,3 +112,60 @@ def hand_down_quat(finger_dir: np.ndarray) -> np.ndarray:
     x /= np.linalg.norm(x)
     z = np.array([0.0, 0.0, -1.0])
     return mat2quat(np.stack([x, np.cross(z, x), z], axis=1))
+
+
+def se3(pose) -> pin.SE3:
+    """sapien.Pose -> pin.SE3."""
+    return pin.SE3(pin.Quaternion(float(pose.q[0]), *map(float, pose.q[1:])).matrix(), np.asarray(pose.p, dtype=float))
+
+
+@cache
+def panda_geometry() -> tuple[pin.Model, pin.GeometryModel]:
+    """The Panda's kinematic model and collision meshes (shared: callers copy what they change)."""
+    model = pin.buildModelFromUrdf(str(PANDA_URDF))
+    geom = pin.buildGeomFromUrdf(model, str(PANDA_URDF), pin.GeometryType.COLLISION, package_dirs=[str(PANDA_DIR)])
+    return model, geom
+
+
+def panda_obstacles(qpos: np.ndarray, base, prefix: str) -> list[Obstacle]:
+    """A Panda where it stands (`qpos`: 9 values, `base`: its base's world pose) as obstacles, its collision meshes
+    placed by forward kinematics."""
+    model, geom = panda_geometry()
+    data, gdata = model.createData(), pin.GeometryData(geom)
+    q = pin.neutral(model)
+    q[:9] = qpos
+    pin.framesForwardKinematics(model, data, q)
+    pin.updateGeometryPlacements(model, data, geom, gdata)
+    world = se3(base)
+    return [Obstacle(f"{prefix}{g.name}", g.geometry, world * gdata.oMg[i]) for i, g in enumerate(geom.geometryObjects)]
+
+
+def ik_hand_down(ik: ArmIK, finger_dir: np.ndarray, p: np.ndarray,
+                 seed_q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(quat, q) putting the TCP at p with the hand down (see ArmIK.solve_hand_down), or a PlanningError."""
+    solution = ik.solve_hand_down(p, finger_dir, seed_q)
+    if solution is None:
+        raise PlanningError(f"no IK solution within the joint limits for the TCP at {np.round(p, 3)}")
+    return solution
+
+
+def tcp_line(ik: ArmIK, q_from: np.ndarray, p_from: np.ndarray, p_to: np.ndarray, quat: np.ndarray,
+             step: float) -> tuple[np.ndarray, np.ndarray]:
+    """Joint targets (T, 7) moving the TCP on a straight line from p_from to p_to at `step` m per control step,
+    and the last solution (9)."""
+    n = max(1, int(np.ceil(np.linalg.norm(p_to - p_from) / step)))
+    q, out = np.asarray(q_from, dtype=float), []
+    for k in range(1, n + 1):
+        q, ok = ik.solve(sapien.Pose(p_from + (p_to - p_from) * k / n, quat), q)
+        if not ok:
+            raise PlanningError(f"no IK solution on the line to {np.round(p_to, 3)}")
+        out.append(q[:7])
+    return np.array(out), q
+
+
+def line_to(ik: ArmIK, q_from: np.ndarray, p: np.ndarray, quat: np.ndarray, gripper: float, step: float,
+            settle: int = 4) -> Waypoint:
+    q, ok = ik.solve(sapien.Pose(p, quat), q_from)
+    if not ok:
+        raise PlanningError(f"no IK solution for the TCP at {np.round(p, 3)}")
+    return Waypoint("line", q, gripper, tcp=np.asarray(p, dtype=float), quat=quat, step=step, settle=settle)

@@ -58,7 +58,7 @@ def record_dataset(folder: Path, recipe: str, episodes: int, resolution: int, na
 
     from policy_composer.app.record import record_recipe
     from policy_composer.data.recipes import load_recipe
-    from policy_composer.tasks.spec import EnvSettings
+    from policy_composer.tasks.gear_assembly.spec import EnvSettings
 
     root = folder / (name or recipe)
     record_recipe(replace(load_recipe(recipe), **changes), root, episodes=episodes,
@@ -144,7 +144,7 @@ def cnn_mdn_checkpoint(insertion_demos, tmp_path_factory):
     """The paper's policy through lerobot-train (the `lerobot_policy_cnn_mdn` plugin), as the project trains its
     insertion: the left forearm camera's insertion window, the gripper's width, the gear-offset auxiliary loss. Its
     binary action is named: in two episodes, the right arm's joints (still in each) take two values too."""
-    from policy_composer.tasks.spec import INSERTION_WINDOWS
+    from policy_composer.tasks.gear_assembly.spec import INSERTION_WINDOWS
 
     window = ",".join(map(str, INSERTION_WINDOWS["left_forearm"]))
     train = partial(lerobot_train, insertion_demos, policy="cnn_mdn", args=(

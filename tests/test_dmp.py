@@ -16,7 +16,7 @@ from policy_composer.policies.dmp.controller import (
     rollout,
 )
 from policy_composer.policies.mp.planning import time_parameterize
-from policy_composer.policies.subtasks import SUBTASKS
+from policy_composer.tasks.gear_assembly.subtasks import SUBTASKS
 
 
 def test_primitive_reproduces_its_demonstration_and_reaches_a_new_goal():

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from policy_composer.tasks.spec import CAMERA_NAMES, CONTROL_FREQ, STATE_NAMES
+from policy_composer.tasks.gear_assembly.spec import CAMERA_NAMES, CONTROL_FREQ, STATE_NAMES
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +57,7 @@ def test_same_seed_same_state_different_seeds_differ(state_env):
 def test_an_episode_does_not_depend_on_the_episodes_before_it(state_env):
     """The same seed and actions give the same states whatever ran before the reset (ManiSkill's determinism
     check, across episodes): nothing of the physics survives a reset."""
-    from policy_composer.tasks.gear_expert import GearAssemblyExpert
+    from policy_composer.tasks.gear_assembly.expert import GearAssemblyExpert
 
     def states(seed, steps=40):
         obs, _ = state_env.reset(seed=seed)
@@ -103,7 +103,7 @@ def test_the_pre_insertion_start_holds_the_gear_above_the_peg_off_centre(state_e
     """reset(options={"start": "pre_insertion"}) gives the insertion's start state without the pick-up: the gear
     held (not resting on anything), its centre off the fingers' centre by the drawn grasp offset, the hand above the
     peg; the same seed gives the same state, and the expert inserts from there."""
-    from policy_composer.tasks.gear_expert import GearAssemblyExpert
+    from policy_composer.tasks.gear_assembly.expert import GearAssemblyExpert
 
     u = state_env.unwrapped
     offsets, at_peg = [], 0
@@ -187,7 +187,7 @@ def test_flat_action_of_the_wrong_size_is_refused(state_env):
 
 def test_the_right_forearm_camera_sees_the_gear_come_down_onto_the_peg(rgb_env):
     """Its goal score can only learn the insertion if the gear enters its view (the hand hid it at first)."""
-    from policy_composer.tasks.gear_expert import GearAssemblyExpert
+    from policy_composer.tasks.gear_assembly.expert import GearAssemblyExpert
 
     u = rgb_env.unwrapped
     obs, _ = rgb_env.reset(seed=0)
@@ -227,7 +227,7 @@ def test_the_robot_knows_its_hand_over_the_peg_from_its_joints(state_env):
     """What the predicate classifiers get besides the cameras: the left hand relative to the peg's top from both arms'
     joint angles (forward kinematics and the peg module's place in the right hand) is where the simulator has it, at
     the start, on the way down and off to the side."""
-    from policy_composer.tasks.gear_kinematics import HandToPeg
+    from policy_composer.tasks.gear_assembly.kinematics import HandToPeg
 
     u = state_env.unwrapped
     hand_to_peg = HandToPeg(u.gear_spec)

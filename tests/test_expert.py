@@ -2,9 +2,9 @@
 
 import pytest
 
-from policy_composer.tasks.gear_expert import ExpertConfig, GearAssemblyExpert
-from policy_composer.tasks.rollout import run_episode
-from policy_composer.tasks.spec import EXPERT_PHASES as PHASES
+from policy_composer.tasks.gear_assembly.expert import ExpertConfig, GearAssemblyExpert
+from policy_composer.tasks.gear_assembly.rollout import run_episode
+from policy_composer.tasks.gear_assembly.spec import EXPERT_PHASES as PHASES
 
 
 @pytest.mark.parametrize("seed", [0, 3, 7])

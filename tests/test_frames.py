@@ -19,8 +19,8 @@ from policy_composer.data import recorder
 from policy_composer.data.features import DatasetError, image_key, open_dataset, read_info, video_frames
 from policy_composer.data.frames import load_frames, to_model_image
 from policy_composer.data.recorder import FrameBuffer, LeRobotWriter
-from policy_composer.tasks.gear_expert import GearAssemblyExpert
-from policy_composer.tasks.spec import CAMERA_NAMES
+from policy_composer.tasks.gear_assembly.expert import GearAssemblyExpert
+from policy_composer.tasks.gear_assembly.spec import CAMERA_NAMES
 
 RES, STEPS, BLOCK = 64, 30, 8  # the frame index is stamped as 8 black or white 8x8 blocks along the top row
 BIN = Path(sys.executable).parent

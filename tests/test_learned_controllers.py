@@ -18,7 +18,6 @@ from policy_composer.data.frames import load_frames, to_model_image
 from policy_composer.data.recipes import RecipeError, load_recipe
 from policy_composer.data.recorder import FrameBuffer
 from policy_composer.learning.training import fit_epochs
-from policy_composer.policies.arm import np0
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 from policy_composer.policies.cnn.controller import CNNController, hand_step
 from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
@@ -33,11 +32,12 @@ from policy_composer.policies.cnn.train import (
 )
 from policy_composer.policies.lerobot_policy.controller import LeRobotPolicyController, lerobot_label
 from policy_composer.policies.library import LibrarySources
-from policy_composer.policies.subtasks import SUBTASKS
-from policy_composer.tasks.gear_expert import ExpertConfig, GearAssemblyExpert
-from policy_composer.tasks.gear_kinematics import LeftArmIK
+from policy_composer.tasks.base import np0
+from policy_composer.tasks.gear_assembly.expert import ExpertConfig, GearAssemblyExpert
+from policy_composer.tasks.gear_assembly.kinematics import LeftArmIK
+from policy_composer.tasks.gear_assembly.spec import EnvSettings
+from policy_composer.tasks.gear_assembly.subtasks import SUBTASKS
 from policy_composer.tasks.panda import PandaForwardKinematics
-from policy_composer.tasks.spec import EnvSettings
 
 TINY = dict(image_size=32, hidden_dim=64, num_mixtures=4, batch_size=16, epochs=30)
 

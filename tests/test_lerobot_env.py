@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from conftest import lerobot, run_cli
 
-from policy_composer.tasks.lerobot_env import TASKS, GearAssemblyLeRobotEnv
-from policy_composer.tasks.spec import CAMERA_NAMES
+from policy_composer.tasks.gear_assembly.lerobot_env import TASKS, GearAssemblyLeRobotEnv
+from policy_composer.tasks.gear_assembly.spec import CAMERA_NAMES
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +30,7 @@ def test_observations_and_success_in_lerobots_conventions(insert_env):
     true when the demonstrator seats the gear."""
     from lerobot.envs.utils import preprocess_observation
 
-    from policy_composer.tasks.gear_expert import GearAssemblyExpert
+    from policy_composer.tasks.gear_assembly.expert import GearAssemblyExpert
 
     obs, info = insert_env.reset(seed=3)
     assert insert_env.observation_space.contains(obs) and info == {"is_success": False}

@@ -13,13 +13,10 @@ from transforms3d.euler import euler2quat
 from transforms3d.quaternions import qmult
 
 from policy_composer.policies.arm import (
-    GRIPPER_OPEN,
     STEP_SPEED_MARGIN,
     Outcome,
-    SceneGeometry,
     ScriptedController,
     Segment,
-    np0,
     run_activation,
 )
 from policy_composer.policies.base import InitiationError
@@ -35,11 +32,14 @@ from policy_composer.policies.mp.planning import (
 )
 from policy_composer.policies.registry import LibraryError
 from policy_composer.policies.senses import CachedSenses, OracleSenses, Percept
-from policy_composer.policies.subtasks import CONFIRM_STEPS, INSERTIONS, SUBTASKS, Insert, LearnedController
-from policy_composer.tasks.gear_assembly import LEFT_START_QPOS
-from policy_composer.tasks.gear_kinematics import LEFT_BASE
-from policy_composer.tasks.panda import hand_down_quat
-from policy_composer.tasks.spec import PREDICATES
+from policy_composer.policies.subtasks import CONFIRM_STEPS, LearnedController
+from policy_composer.tasks.base import np0
+from policy_composer.tasks.gear_assembly.env import LEFT_START_QPOS
+from policy_composer.tasks.gear_assembly.kinematics import LEFT_BASE
+from policy_composer.tasks.gear_assembly.scene import GearScene
+from policy_composer.tasks.gear_assembly.spec import PREDICATES
+from policy_composer.tasks.gear_assembly.subtasks import INSERTIONS, SUBTASKS, Insert
+from policy_composer.tasks.panda import GRIPPER_OPEN, hand_down_quat
 
 
 def truth(controller) -> dict:
@@ -50,7 +50,7 @@ def truth(controller) -> dict:
 def _scene(env) -> SceneCollisionModel:
     u = env.unwrapped
     model = SceneCollisionModel(LEFT_BASE)
-    model.set_scene(SceneGeometry(u).obstacles())
+    model.set_scene(GearScene(u).planning_obstacles())
     return model
 
 
@@ -128,7 +128,7 @@ def test_the_carry_keeps_a_gear_held_off_centre_clear_of_the_peg(state_env):
     assert abs(held[0]) > 0.012
     tcp = model.frames[model.getFrameId("panda_hand_tcp")].placement
     real = SceneCollisionModel(LEFT_BASE)
-    real.set_scene(move.scene.obstacles(), held=HeldObject(spec.outer_radius, spec.height,
+    real.set_scene(move.scene.planning_obstacles(), held=HeldObject(spec.outer_radius, spec.height,
                                    tcp * pin.SE3(np.eye(3), held - [0, 0, spec.height / 2])),
                    fingers=move.collision.fingers[0])
     path = np.concatenate([s.q for s in move.segments])
@@ -228,7 +228,7 @@ def test_a_command_past_the_velocity_limit_stops_for_safety(state_env):
             return True
 
         def plan(self, obs, seed):
-            q = self.left_qpos(obs)
+            q = self.arm_qpos(obs)
             return [Segment(np.stack([q, q + [0.5, 0, 0, 0, 0, 0, 0]]), 1.0)]  # 0.5 rad in 50 ms = 10 rad/s
 
     obs, _ = state_env.reset(seed=0)
@@ -256,7 +256,7 @@ def test_a_learned_controller_limits_its_step_instead_of_stopping(state_env):
     obs, _ = state_env.reset(seed=0)
     lunges = Lunges(state_env, SUBTASKS["pick"], "lunges")
     lunges.start(obs)
-    q0 = lunges.left_qpos(obs)
+    q0 = lunges.arm_qpos(obs)
     first = lunges.act(obs)[:7].numpy().astype(np.float64)
     step = first - q0
     assert lunges.outcome is Outcome.RUNNING, lunges.reason
@@ -277,7 +277,7 @@ def test_a_learned_insertion_that_lets_go_above_the_peg_keeps_the_gear_and_fails
 
     class OpensAtOnce(LearnedController):
         def predict(self, obs):
-            return self.left_qpos(obs), 1.0  # stay, and open
+            return self.arm_qpos(obs), 1.0  # stay, and open
 
     obs, _ = state_env.reset(seed=1)
     for name in ("pick", "move"):
@@ -313,7 +313,7 @@ def test_a_learned_insertion_that_leads_the_gear_away_backs_off_with_it(state_en
     """The insertion's termination condition: a policy that carries the gear away from the peg (as a badly trained
     CNN did, 38 mm off and down beside the peg) is stopped once it is off course and brings the gear back to the
     pre-insertion pose, still holding it; one that merely runs out of steps holding the gear off the peg does too."""
-    from policy_composer.tasks.gear_assembly import OFF_COURSE_RADIUS
+    from policy_composer.tasks.gear_assembly.env import OFF_COURSE_RADIUS
 
     for max_steps, reason in ((60, "the gear was tipped or led away from the peg"),
                               (2, "it stopped with the gear in the hand")):
@@ -329,7 +329,7 @@ def test_a_learned_insertion_that_leads_the_gear_away_backs_off_with_it(state_en
 
 def test_an_insertion_letting_go_part_way_down_the_peg_backs_off_instead(state_env, monkeypatch):
     """The CNN let go of gears 3 mm below the peg's top, where they stuck: the release guard wants the gear down."""
-    import policy_composer.policies.subtasks as subtasks
+    import policy_composer.tasks.gear_assembly.subtasks as subtasks
 
     monkeypatch.setattr(subtasks, "RELEASE_HEIGHT", 0.030)  # this insertion opens the gripper 30 mm above the plate
     obs, _ = state_env.reset(seed=0, options={"start": "pre_insertion"})
@@ -353,7 +353,7 @@ def test_a_back_off_from_commands_the_arm_could_not_follow_ramps_instead_of_stop
 
     class Holds(LearnedController):
         def predict(self, obs):  # as if held back: its commands 0.3 rad ahead of joint 2
-            self._last = self.left_qpos(obs) + [0, 0.3, 0, 0, 0, 0, 0]
+            self._last = self.arm_qpos(obs) + [0, 0.3, 0, 0, 0, 0, 0]
             return self._last, -1.0
 
     obs, _ = state_env.reset(seed=7, options={"start": "pre_insertion"})
@@ -373,7 +373,7 @@ def test_a_learned_pick_up_and_move_end_holding_the_gear_once_achieved(state_env
     insertion ends only once the hand has let go): stand-ins that follow the scripted expert's commands stop at the
     lift and at the pre-insertion pose (once it has been sensed for CONFIRM_STEPS steps, in which the expert may have
     begun its next phase), not at their step budget."""
-    from policy_composer.tasks.gear_expert import GearAssemblyExpert
+    from policy_composer.tasks.gear_assembly.expert import GearAssemblyExpert
 
     class FollowsExpert(LearnedController):
         def predict(self, obs):
@@ -397,7 +397,7 @@ def test_a_move_needs_the_gear_level_and_near_the_fingers_centre(state_env):
     centre. Tipped or pushed along the fingers (as a CNN insertion's back-offs left it), no move can bring it to the
     pre-insertion pose; only the re-grasp may start."""
     from policy_composer.app.controller_table import start_state
-    from policy_composer.tasks.gear_assembly import INSERT_TILT_DEG
+    from policy_composer.tasks.gear_assembly.env import INSERT_TILT_DEG
 
     obs = start_state(state_env, 2, "move")
     percept = OracleSenses(state_env)(obs)
@@ -422,11 +422,11 @@ def test_a_plan_that_starts_away_from_the_measured_joints_ramps_there(state_env)
             return True
 
         def plan(self, obs, seed):
-            return [Segment((self.left_qpos(obs) + [0, 0, 0, 0.3, 0, 0, 0.2])[None], GRIPPER_OPEN, settle=2)]
+            return [Segment((self.arm_qpos(obs) + [0, 0, 0, 0.3, 0, 0, 0.2])[None], GRIPPER_OPEN, settle=2)]
 
     obs, _ = state_env.reset(seed=3)
     planned = Planned(state_env)
-    start = planned.left_qpos(obs)
+    start = planned.arm_qpos(obs)
     obs = run_activation(state_env, planned, obs, seed=3)
     assert planned.outcome is Outcome.DONE, planned.reason
     targets = planned.trajectory
@@ -464,24 +464,24 @@ def test_a_learned_controller_stops_before_a_command_into_the_right_arm(state_en
     reaches = Reaches(state_env, SUBTASKS["pick"], "reaches", max_steps=200)
     right_hand = u.right_arm.tcp.pose.p[0].numpy()
     q, _ = reaches.ik.solve(sapien.Pose(right_hand + [0, 0, 0.05], [0, 1, 0, 0]),
-                            np.concatenate([reaches.left_qpos(obs), [0.04, 0.04]]))
+                            np.concatenate([reaches.arm_qpos(obs), [0.04, 0.04]]))
     reaches.target = q[:7]
     scene = _scene(state_env)
     assert scene.in_collision(reaches.target)
     obs = run_activation(state_env, reaches, obs, seed=0)
     assert reaches.outcome is Outcome.FAILED and reaches._steps < 200
     assert reaches.reason.startswith("stopped before a command that collides") and "right_panda" in reaches.reason
-    assert not scene.in_collision(reaches.left_qpos(obs))
+    assert not scene.in_collision(reaches.arm_qpos(obs))
 
 
 def test_the_goal_pose_is_found_from_an_arm_left_contorted(state_env):
     """The moves' goal configuration (the hand down at the pre-insertion pose) is solved for from the measured joints;
     where the solver finds none from there, from the rest configuration."""
-    from policy_composer.tasks.gear_kinematics import LeftArmIK
+    from policy_composer.tasks.gear_assembly.kinematics import LeftArmIK
     from policy_composer.tasks.panda import JOINT_HIGH, JOINT_LOW
 
     state_env.reset(seed=0)
-    ik, scene = LeftArmIK(state_env), SceneGeometry(state_env)
+    ik, scene = LeftArmIK(state_env), GearScene(state_env)
     contorted = np.concatenate([JOINT_LOW + 0.05, [0.04, 0.04]])
     target = scene.pre_insertion_tcp()
     for quat in (hand_down_quat(scene.finger_dir()), hand_down_quat(-scene.finger_dir())):
@@ -496,7 +496,7 @@ class Stays(LearnedController):
     """A learned policy that holds the arm where it is."""
 
     def predict(self, obs):
-        return self.left_qpos(obs), -1.0
+        return self.arm_qpos(obs), -1.0
 
 
 class Scripted(CachedSenses):

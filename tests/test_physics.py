@@ -6,8 +6,8 @@ import pytest
 import torch
 from mani_skill.utils.structs.pose import Pose
 
-from policy_composer.tasks.gear_expert import GearAssemblyExpert
-from policy_composer.tasks.rollout import run_episode
+from policy_composer.tasks.gear_assembly.expert import GearAssemblyExpert
+from policy_composer.tasks.gear_assembly.rollout import run_episode
 
 
 def release_above_peg(env, seed: int, radial_offset: float, steps: int = 40) -> dict:

@@ -20,7 +20,7 @@ import torch
 from conftest import run_cli, tree_digest
 from test_frames import Stamped, read_stamp
 
-import policy_composer.tasks.gear_assembly  # noqa: F401  (registers GearAssembly-v1)
+import policy_composer.tasks.gear_assembly.env  # noqa: F401  (registers GearAssembly-v1)
 from policy_composer.app.record import record_recipe
 from policy_composer.data import journal
 from policy_composer.data.catalog import HubUnreachable, card_fields, drop_controller, push_dataset, summarize
@@ -29,8 +29,8 @@ from policy_composer.data.recipes import ExpertSettings, RecipeError, available_
 from policy_composer.data.recorder import LeRobotRecorder
 from policy_composer.learning.checkpoint import CheckpointError
 from policy_composer.policies.library import LeRobotSource, LibraryError, LibrarySources
-from policy_composer.tasks.gear_expert import ExpertConfig, GearAssemblyExpert
-from policy_composer.tasks.spec import ACTION_NAMES, CAMERA_NAMES, STATE_NAMES, EnvSettings
+from policy_composer.tasks.gear_assembly.expert import ExpertConfig, GearAssemblyExpert
+from policy_composer.tasks.gear_assembly.spec import ACTION_NAMES, CAMERA_NAMES, STATE_NAMES, EnvSettings
 
 RES = 64
 BIN = Path(sys.executable).parent

@@ -18,7 +18,7 @@ from policy_composer.policies.subtasks import LearnedController
 
 class WiggleInsert(LearnedController):
     def predict(self, obs):
-        q = self.left_qpos(obs)
+        q = self.arm_qpos(obs)
         q[6] += self.amplitude * (-1) ** self._steps
         return q, -1.0
 

@@ -427,7 +427,7 @@ def test_each_predicate_is_judged_on_held_out_episodes(world, controller_rollout
         proprioception,
         stacked,
     )
-    from policy_composer.tasks.spec import PREDICATES
+    from policy_composer.tasks.gear_assembly.spec import PREDICATES
 
     models = load_predicates(world[0])
     assert set(models) == set(PREDICATES)
@@ -486,8 +486,8 @@ def test_the_controller_the_selector_chooses_is_the_one_that_runs(world, full_ta
 
 def test_knock_out_puts_the_gear_back_on_the_table(state_env):
     from policy_composer.policies.senses import OracleSenses
-    from policy_composer.policies.subtasks import SUBTASKS
-    from policy_composer.tasks.gear_expert import GearAssemblyExpert
+    from policy_composer.tasks.gear_assembly.expert import GearAssemblyExpert
+    from policy_composer.tasks.gear_assembly.subtasks import SUBTASKS
 
     env = gym.make("GearAssembly-v1", obs_mode="state_dict", knock_out_step=5)
     u = env.unwrapped

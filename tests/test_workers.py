@@ -57,7 +57,7 @@ def test_rollouts_recorded_on_two_workers_are_the_serial_dataset(controller_roll
 
     from policy_composer.app.record import record_recipe
     from policy_composer.data.recipes import load_recipe
-    from policy_composer.tasks.spec import EnvSettings
+    from policy_composer.tasks.gear_assembly.spec import EnvSettings
 
     root = tmp_path / "rollouts"
     recipe = replace(load_recipe("gear-controller-rollouts"), controllers=("mp_pick", "mp_insert"))
@@ -107,7 +107,7 @@ def test_episodes_on_a_ray_cluster_are_the_serial_ones_and_a_killed_worker_runs_
     dataset."""
     from policy_composer.app.record import record_recipe
     from policy_composer.data.recipes import load_recipe
-    from policy_composer.tasks.spec import EnvSettings
+    from policy_composer.tasks.gear_assembly.spec import EnvSettings
 
     killed = []
 

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 from policy_composer.learning.config import BACKBONES, TrainingConfig, option
 from policy_composer.policies.registry import register_kind
-from policy_composer.tasks.spec import CAMERA_NAMES, INSERTION_WINDOWS
+from policy_composer.tasks.gear_assembly.spec import CAMERA_NAMES, INSERTION_WINDOWS
 
 # What the policy reads of observation.state besides its image, and its size:
 # "gripper": the gripper's width only. With the joints as input, a few dozen demonstrations can be fitted from
@@ -38,7 +38,7 @@ class CNNPolicyConfig(TrainingConfig):
     subtask: str = option("insert", "the subtask the policy is trained for", tuple(DEMONSTRATIONS))
     camera: str = option("left_forearm", "the camera the policy sees", CAMERA_NAMES)
     view: str = option("auto", "what the policy sees of its camera: the whole image, or the window where the held "
-                       "gear meets the peg (tasks.spec.INSERTION_WINDOWS); auto: the window for the insertion where "
+                       "gear meets the peg (the spec's INSERTION_WINDOWS); auto: the window for the insertion where "
                        "the camera has one", ("auto", "whole", "insertion"))
     image_size: int = option(64, "images are resized to this square before the encoder", minimum=16)
     backbone: str = option("spatial", "image encoder (see learning.layers.image_encoder)", BACKBONES)

@@ -8,14 +8,15 @@ import sapien
 from transforms3d.quaternions import quat2mat
 
 from policy_composer.data.frames import to_model_image
-from policy_composer.policies.arm import np0
 from policy_composer.policies.cnn.configuration_cnn import PROPRIOCEPTION, CNNPolicyConfig
 from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
 from policy_composer.policies.cnn.train import load_cnn_library as load  # noqa: F401  (the registry's loader)
 from policy_composer.policies.cnn.train import policy_state
 from policy_composer.policies.registry import LibraryError
-from policy_composer.policies.subtasks import SUBTASKS, LearnedController, Subtask, check_camera
-from policy_composer.tasks.gear_kinematics import LeftArmIK
+from policy_composer.policies.subtasks import LearnedController, check_camera
+from policy_composer.tasks.base import Subtask, np0
+from policy_composer.tasks.panda import ArmIK
+from policy_composer.tasks.registry import task_of
 
 # How far the commanded TCP may run ahead of the measured one (m). The demonstrations' commands lead it by 8 cm at
 # most; a policy pushing against the table or the peg would otherwise wind its command up until the arm reaches a
@@ -26,10 +27,11 @@ MAX_LEAD = 0.10
 
 class CNNController(LearnedController):
     """Each step: the policy's most probable action, added to the controller's running command (the policy
-    predicts changes of the command) and turned into the left arm's joint targets. A policy in the "hand"
+    predicts changes of the command) and turned into the arm's joint targets. A policy in the "hand"
     action space moves the commanded TCP, with the hand kept pointing down, by IK from the measured joints."""
 
-    def __init__(self, env, policy: CNNPolicy, subtask: Subtask = SUBTASKS["insert"], max_steps: int | None = None):
+    def __init__(self, env, policy: CNNPolicy, subtask: Subtask | None = None, max_steps: int | None = None):
+        subtask = subtask or task_of(env).subtasks[policy.config.subtask]
         super().__init__(env, subtask, f"cnn_{subtask.name}", max_steps or policy.config.max_steps)
         check_camera(self.env, policy.config.camera, "the CNN policy")
         self.policy = policy
@@ -38,10 +40,10 @@ class CNNController(LearnedController):
 
     def reset(self, obs, seed=None):
         super().reset(obs, seed)
-        q9 = np0(self.env.left_arm.robot.get_qpos())
+        q9 = np0(self.ik.arm.robot.get_qpos())
         solution = self.ik.solve_hand_down(self.scene.tcp(), self.scene.finger_dir(), q9)
-        self._quat = solution[0] if solution is not None else np0(self.env.left_arm.tcp.pose.q)
-        self._command = self.scene.tcp() if self.policy.config.action_space == "hand" else self.left_qpos(obs)
+        self._quat = solution[0] if solution is not None else np0(self.ik.arm.tcp.pose.q)
+        self._command = self.scene.tcp() if self.policy.config.action_space == "hand" else self.arm_qpos(obs)
 
     def predict(self, obs):
         camera, size = self.policy.config.camera, self.policy.config.image_size
@@ -56,7 +58,7 @@ class CNNController(LearnedController):
         return q, gripper
 
 
-def hand_step(ik: LeftArmIK, command: np.ndarray, displacement: np.ndarray,
+def hand_step(ik: ArmIK, command: np.ndarray, displacement: np.ndarray,
               quat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Move the commanded TCP position (world) by `displacement` (m, in the hand's frame), orientation `quat`:
     the new command, kept within MAX_LEAD of the measured TCP, and its joint targets (7), solved from the measured

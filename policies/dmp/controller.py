@@ -24,7 +24,9 @@ from policy_composer.learning.checkpoint import CheckpointError, check_finite
 from policy_composer.policies.arm import Outcome, Segment, run_activation
 from policy_composer.policies.dmp.configuration_dmp import DMPConfig
 from policy_composer.policies.mp.planning import VELOCITY_LIMIT, time_parameterize
-from policy_composer.policies.subtasks import SUBTASKS, TASK_SEQUENCE, SubtaskController, Waypoint
+from policy_composer.policies.subtasks import SubtaskController
+from policy_composer.tasks.base import Waypoint
+from policy_composer.tasks.registry import task_of
 
 DMP_FILES = ("dmp.safetensors", "dmp.json")
 MIN_DEMO_STEPS = 5  # shorter movements (a few mm of alignment) are not worth a DMP: they go straight in joint space
@@ -144,11 +146,12 @@ def fit_dmp_library(env, seeds: list[int], config: DMPConfig | None = None, prog
     from policy_composer.policies.mp.controller import MotionPlanningController
 
     config = config or DMPConfig(dt=1.0 / float(env.unwrapped.control_freq))
-    demos: dict[str, list[list[np.ndarray | None]]] = {n: [] for n in TASK_SEQUENCE}
+    task = task_of(env)
+    demos: dict[str, list[list[np.ndarray | None]]] = {n: [] for n in task.sequence}
     for seed in tqdm(seeds, desc="planner demonstrations for the DMPs", unit="episode", disable=not progress):
         obs, _ = env.reset(seed=seed)
-        for name in TASK_SEQUENCE:
-            mp = MotionPlanningController(env, SUBTASKS[name], grasp_offset=0.0)
+        for name in task.sequence:
+            mp = MotionPlanningController(env, task.subtasks[name], grasp_offset=0.0)
             if not mp.can_start(obs):
                 break
             start = mp.q9(obs)[:7]

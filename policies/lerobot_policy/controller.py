@@ -3,8 +3,8 @@ on our datasets) as a controller.
 
 The user gives the initiation set and termination by naming the subtask the policy was trained for. The
 checkpoint's own processors normalise inputs and outputs, as in `lerobot-eval`. Its input features must be
-cameras this env renders (`observation.images.<camera>`) and the 16-D `observation.state`; its 16-D action is
-applied to the left arm only (the right arm holds), like every controller of the library.
+cameras this env renders (`observation.images.<camera>`) and the task's `observation.state`; of its action (the task's
+flat action), the driven arm's part is applied (any other arm holds), like every controller of the library.
 """
 
 from __future__ import annotations
@@ -19,8 +19,9 @@ import torch
 
 from policy_composer.data.frames import to_model_image
 from policy_composer.learning.checkpoint import CheckpointError, check_finite
-from policy_composer.policies.subtasks import SUBTASKS, LearnedController, Subtask, check_camera
-from policy_composer.tasks.spec import ACTION_NAMES, STATE_NAMES
+from policy_composer.policies.subtasks import LearnedController, check_camera
+from policy_composer.tasks.base import Subtask
+from policy_composer.tasks.registry import task_of
 
 POLICY_NAMES = {"act": "ACT", "diffusion": "Diffusion Policy", "pi0": "pi0", "smolvla": "SmolVLA", "vqbet": "VQ-BeT",
                 "cnn_mdn": "CNN + MDN"}
@@ -66,9 +67,10 @@ def damaged_files(path: Path, what: str) -> Iterator[None]:
 
 
 class LeRobotPolicyController(LearnedController):
-    def __init__(self, env, pretrained_path: str | Path, subtask: Subtask = SUBTASKS["insert"], name: str | None = None,
-                 task: str = "Insert the gear held by the left gripper onto the peg held by the right arm.",
-                 max_steps: int = 120):
+    def __init__(self, env, pretrained_path: str | Path, subtask: Subtask | None = None, name: str | None = None,
+                 instruction: str | None = None, max_steps: int = 120):
+        """`subtask`: the one the policy was trained for (default: the task's last); `instruction`: LeRobot's
+        `task` string (default: the task's own)."""
         from lerobot.configs.policies import PreTrainedConfig
         from lerobot.policies.factory import get_policy_class, make_pre_post_processors
 
@@ -80,6 +82,8 @@ class LeRobotPolicyController(LearnedController):
         with damaged_files(path / "config.json", "is not a LeRobot policy config"):
             cfg = PreTrainedConfig.from_pretrained(path)
         cfg.device, cfg.pretrained_path = "cpu", str(path)
+        task = task_of(env)
+        subtask = subtask or task.subtasks[task.sequence[-1]]
         super().__init__(env, subtask, name or f"{cfg.type}_{subtask.name}", max_steps)
         self.images = {}
         for key, feature in cfg.input_features.items():
@@ -87,20 +91,20 @@ class LeRobotPolicyController(LearnedController):
                 camera = key.removeprefix("observation.images.")
                 check_camera(self.env, camera, f"the {cfg.type} policy at {path}")
                 self.images[key] = (camera, int(feature.shape[-1]))
-            elif key == "observation.state" and tuple(feature.shape) != (len(STATE_NAMES),):
+            elif key == "observation.state" and tuple(feature.shape) != (len(task.state_names),):
                 raise CheckpointError(f"the policy at {path} takes a state of shape {tuple(feature.shape)}, "
-                                      f"GearAssembly-v1 gives ({len(STATE_NAMES)},)")
-        if tuple(cfg.output_features["action"].shape) != (len(ACTION_NAMES),):
+                                      f"{task.env_id} gives ({len(task.state_names)},)")
+        if tuple(cfg.output_features["action"].shape) != (len(task.action_names),):
             raise CheckpointError(f"the policy at {path} outputs actions of shape "
                                   f"{tuple(cfg.output_features['action'].shape)}, "
-                                  f"GearAssembly-v1 takes ({len(ACTION_NAMES)},)")
+                                  f"{task.env_id} takes ({len(task.action_names)},)")
         with damaged_files(path / "model.safetensors", "does not hold the weights of this policy"):
             self.policy = get_policy_class(cfg.type).from_pretrained(path, config=cfg).eval()
         check_finite(path / "model.safetensors", self.policy.state_dict(), "train it again with lerobot-train")
         with damaged_files(path, "does not hold readable processors (policy_preprocessor.json and its files)"):
             self.preprocess, self.postprocess = make_pre_post_processors(
                 cfg, pretrained_path=str(path), preprocessor_overrides={"device_processor": {"device": "cpu"}})
-        self.task = task
+        self.instruction = instruction or task.instruction
         self.obs_keys = tuple(f"sensor_data.{c}.rgb" for c, _ in self.images.values()) + ("extra.state",)
 
     def reset(self, obs, seed=None):
@@ -112,7 +116,7 @@ class LeRobotPolicyController(LearnedController):
         batch = {key: to_model_image(obs["sensor_data"][camera]["rgb"][:1].cpu(), size)
                  for key, (camera, size) in self.images.items()}
         batch["observation.state"] = obs["extra"]["state"][:1].cpu().float()
-        batch["task"] = [self.task]
+        batch["task"] = [self.instruction]
         action = self.postprocess(self.policy.select_action(self.preprocess(batch)))
         a = action[0].cpu().numpy().astype(np.float64)
         return a[:7], float(np.clip(a[7], -1.0, 1.0))

@@ -1,12 +1,12 @@
-"""Motion-planning controllers (paper: MP): pick the gear up, carry it to the peg, insert it open loop.
+"""Motion-planning controllers (paper: MP): a subtask's waypoints connected by plans, executed open loop.
 
 Free-space motions are planned in joint space with OMPL's RRT-Connect against the scene's collision model
-(`policies.planning`) and time-parameterised to the joint velocity limits; approach, lift, descent and
-retreat are straight TCP lines solved by IK. The plan is made once, when the controller starts, from the
-scene as it is then: the controllers are open loop, as the paper's planner was. The pick-up perceives the
-gear's position with an error along the fingers, so the gear sits in the hand off-centre by up to
-`max_grasp_offset` (about the hole's diameter); the carry assumes a centred grasp, and the insertion, which
-cannot see the offset, feels for the hole (`Insert.search`).
+(`mp/planning.py`, the obstacles the task's scene gives) and time-parameterised to the joint velocity limits;
+approach, lift, descent and retreat are straight TCP lines solved by IK. The plan is made once, when the controller
+starts, from the scene as it is then: the controllers are open loop, as the paper's planner was. The pick-up
+perceives the part's position with an error along the fingers, so the part sits in the hand off-centre by up to
+`max_grasp_offset`; the carry assumes a centred grasp, and an insertion that cannot see the offset may feel for the
+hole (`Subtask.search`).
 """
 
 from __future__ import annotations
@@ -15,18 +15,15 @@ import numpy as np
 import pinocchio as pin
 import sapien
 
-from policy_composer.policies.arm import Segment, np0
+from policy_composer.policies.arm import Segment
 from policy_composer.policies.mp.configuration_mp import MPConfig
-from policy_composer.policies.mp.planning import (
-    HeldObject,
-    PlanningError,
-    SceneCollisionModel,
-    plan_rrt_connect,
-    time_parameterize,
-)
-from policy_composer.policies.subtasks import SubtaskController, Waypoint, tcp_line
+from policy_composer.policies.mp.planning import SceneCollisionModel, plan_rrt_connect, time_parameterize
+from policy_composer.policies.subtasks import SubtaskController
+from policy_composer.tasks.base import PlanningError, Waypoint, np0
+from policy_composer.tasks.panda import TCP_LINK, tcp_line
+from policy_composer.tasks.scene import HeldObject
 
-HELD_MARGIN = 0.003  # around the held gear, for the arm lagging its planned path (m)
+HELD_MARGIN = 0.003  # around the held part, for the arm lagging its planned path (m)
 
 
 class MotionPlanningController(SubtaskController):
@@ -40,8 +37,8 @@ class MotionPlanningController(SubtaskController):
 
     def connect(self, obs, waypoints: list[Waypoint], seed):
         finger = float(np0(obs["extra"]["state"])[7] / 2)
-        self.collision.set_scene(self.scene.obstacles(),
-                                 held=self.nominal_held_gear() if self.subtask.holds_gear else None, fingers=finger)
+        self.collision.set_scene(self.scene.planning_obstacles(),
+                                 held=self.nominal_held_part() if self.subtask.holds_part else None, fingers=finger)
         q, segments = self.q9(obs), []
         for wp in waypoints:
             if wp.kind == "free":
@@ -66,19 +63,17 @@ class MotionPlanningController(SubtaskController):
         """World TCP position at configuration q9 (forward kinematics in the planner's model)."""
         model, data = self.collision.model, self.collision.data
         pin.framesForwardKinematics(model, data, q9)
-        local = data.oMf[model.getFrameId("panda_hand_tcp")].translation
+        local = data.oMf[model.getFrameId(TCP_LINK)].translation
         return (self.ik.base() * sapien.Pose(local)).p
 
-    def nominal_held_gear(self) -> HeldObject:
-        """The gear as a cylinder centred under the TCP (the nominal grasp), in the hand joint's frame, widened by
-        how far off-centre the pick-up may have left it and by the arm's lag behind its path: the real gear, not the
-        nominal one, must pass clear of the peg's top, where a caught gear tips out of the hand."""
+    def nominal_held_part(self) -> HeldObject:
+        """The held part at the nominal grasp, in the hand joint's frame, widened by how far off-centre the pick-up
+        may have left it and by the arm's lag behind its path: the real part, not the nominal one, must pass clear of
+        the scene (a gear caught on the peg's top tips out of the hand)."""
         model = self.collision.model
-        tcp = model.frames[model.getFrameId("panda_hand_tcp")].placement
-        spec, h = self.scene.spec, self.scene.grasp_height
-        return HeldObject(spec.outer_radius + self.max_grasp_offset + HELD_MARGIN, spec.height + HELD_MARGIN,
-                          tcp * pin.SE3(np.eye(3), np.array([0, 0, h + HELD_MARGIN - (spec.height + HELD_MARGIN) / 2])))
-
+        tcp = model.frames[model.getFrameId(TCP_LINK)].placement
+        radius, length, pose = self.scene.held_part(self.max_grasp_offset + HELD_MARGIN, HELD_MARGIN)
+        return HeldObject(radius, length, tcp * pose)
 
 
 def build(env, subtask, model, config: MPConfig, max_grasp_offset: float) -> MotionPlanningController:

@@ -12,9 +12,6 @@ planner's budget is a number of collision checks, not seconds, so neither earlie
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from functools import cache
-
 import coal
 import numpy as np
 import pinocchio as pin
@@ -23,72 +20,18 @@ from ompl import geometric as og
 from ompl import util as ou
 
 from policy_composer.policies.mp.configuration_mp import MPConfig
-from policy_composer.tasks.panda import JOINT_HIGH, JOINT_LOW, PANDA_DIR, PANDA_SRDF, PANDA_URDF, VELOCITY_LIMIT
+from policy_composer.tasks.base import PlanningError
+from policy_composer.tasks.panda import JOINT_HIGH, JOINT_LOW, PANDA_SRDF, VELOCITY_LIMIT, panda_geometry, se3
+from policy_composer.tasks.scene import HeldObject, Obstacle
 
-__all__ = ["VELOCITY_LIMIT", "HeldObject", "Obstacle", "PlanningError", "SceneCollisionModel", "panda_obstacles",
-           "plan_rrt_connect", "se3", "table_obstacle", "time_parameterize"]
-
-TABLE_HALF = (1.2, 1.2, 0.05)  # a slab whose top is the table surface (z = 0)
 OMPL_SEED = 1  # OMPL rejects 0
-
-
-class PlanningError(RuntimeError):
-    """No collision-free path was found (or the start or goal is in collision)."""
-
-
-def se3(pose) -> pin.SE3:
-    """sapien.Pose -> pin.SE3."""
-    return pin.SE3(pin.Quaternion(float(pose.q[0]), *map(float, pose.q[1:])).matrix(), np.asarray(pose.p, dtype=float))
-
-
-@dataclass
-class HeldObject:
-    """A cylinder attached to the hand (a held gear or peg), pose in the hand link frame."""
-
-    radius: float
-    height: float
-    hand_to_object: pin.SE3
-
-
-@dataclass
-class Obstacle:
-    """A shape of the scene the arm must not touch, placed in the world."""
-
-    name: str
-    shape: coal.CollisionGeometry
-    pose: pin.SE3
-
-
-def table_obstacle() -> Obstacle:
-    top = pin.SE3(np.eye(3), np.array([0, 0, -TABLE_HALF[2]]))
-    return Obstacle("table", coal.Box(*(2 * np.array(TABLE_HALF))), top)
-
-
-@cache
-def _panda_geometry() -> tuple[pin.Model, pin.GeometryModel]:
-    model = pin.buildModelFromUrdf(str(PANDA_URDF))
-    geom = pin.buildGeomFromUrdf(model, str(PANDA_URDF), pin.GeometryType.COLLISION, package_dirs=[str(PANDA_DIR)])
-    return model, geom
-
-
-def panda_obstacles(qpos: np.ndarray, base, prefix: str) -> list[Obstacle]:
-    """Another Panda where it stands (`qpos`: 9 values, `base`: its base's world pose), its collision meshes placed by
-    forward kinematics."""
-    model, geom = _panda_geometry()
-    data, gdata = model.createData(), pin.GeometryData(geom)
-    q = pin.neutral(model)
-    q[:9] = qpos
-    pin.framesForwardKinematics(model, data, q)
-    pin.updateGeometryPlacements(model, data, geom, gdata)
-    world = se3(base)
-    return [Obstacle(f"{prefix}{g.name}", g.geometry, world * gdata.oMg[i]) for i, g in enumerate(geom.geometryObjects)]
 
 
 class SceneCollisionModel:
     """The planned Panda and its scene, in the arm's base frame (`base`: its world pose)."""
 
     def __init__(self, base):
-        self.model, self._robot_geom = _panda_geometry()
+        self.model, self._robot_geom = panda_geometry()
         self._robot_geom = self._robot_geom.copy()
         self._robot_geom.addAllCollisionPairs()
         pin.removeCollisionPairsFromXML(self.model, self._robot_geom, PANDA_SRDF.read_text())

@@ -17,7 +17,7 @@ from policy_composer.app.controller_table import evaluate_controllers
 from policy_composer.data.features import read_sidecar
 from policy_composer.data.recipes import load_recipe
 from policy_composer.policies.library import LeRobotSource, LibraryError, LibrarySources, all_names
-from policy_composer.tasks.spec import EnvSettings
+from policy_composer.tasks.gear_assembly.spec import EnvSettings
 
 
 def add_lerobot_controller(source: LeRobotSource, rollouts: str | Path, demos: str | Path, models: str | Path,

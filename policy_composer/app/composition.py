@@ -103,7 +103,7 @@ class Composer:
                  video_seeds: tuple[int, ...] = (), world=None, goal_score: str = "image"):
         from policy_composer.policies.library import build_library, cameras_needed
         from policy_composer.selector.world_model import GearWorldModel
-        from policy_composer.tasks.rollout import make_env
+        from policy_composer.tasks.gear_assembly.rollout import make_env
 
         # given: loaded in this process
         self.world = world if world is not None else GearWorldModel.load(models, goal_score=goal_score,

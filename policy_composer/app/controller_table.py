@@ -19,11 +19,11 @@ from policy_composer.app.stats import rate
 from policy_composer.data import atomic
 from policy_composer.policies.arm import Outcome, run_activation
 from policy_composer.policies.senses import OracleSenses
-from policy_composer.policies.subtasks import TASK_SEQUENCE
 from policy_composer.selector.predicates import LearnedSenses, load_predicates
-from policy_composer.tasks.spec import SUBTASK_COLUMNS
+from policy_composer.tasks.gear_assembly.spec import SUBTASK_COLUMNS
+from policy_composer.tasks.gear_assembly.task import TASK
 
-SEQUENCES = {"pick": ("pick",), "move": ("move",), "insert": ("insert",), "full": TASK_SEQUENCE}
+SEQUENCES = {"pick": ("pick",), "move": ("move",), "insert": ("insert",), "full": TASK.sequence}
 START_PHASE = {"move": "carry"}  # the expert phase at which a subtask's start state is taken
 PAPER = {  # paper Table I; "*": stopped for safety; "-": not run
     "MP": {"pick": "10/10", "move": "10/10", "insert": "1/10", "full": "1/10"},
@@ -50,8 +50,6 @@ def start_state(env, seed: int, subtask: str, max_steps: int = 300):
 
     That state may still fall outside the subtask's initiation set (a gear tilted in the grasp, or too far off the
     peg); such a seed is replaced by seed + 1000 (up to five times), so every trial starts where the subtask may."""
-    from policy_composer.policies.subtasks import SUBTASKS
-
     if subtask in ("pick", "full"):
         return env.reset(seed=seed)[0]
     for k in range(5):
@@ -59,14 +57,14 @@ def start_state(env, seed: int, subtask: str, max_steps: int = 300):
             obs = env.reset(seed=seed + 1000 * k, options={"start": "pre_insertion"})[0]
         else:
             obs = _expert_until(env, seed + 1000 * k, subtask, max_steps)
-        if obs is not None and SUBTASKS[subtask].can_start(OracleSenses(env)(obs)):
+        if obs is not None and TASK.subtasks[subtask].can_start(OracleSenses(env)(obs)):
             return obs
     raise RuntimeError(f"no valid {subtask} start state from seed {seed} (tried five)")
 
 
 def _expert_until(env, seed: int, subtask: str, max_steps: int):
     """Run the open-loop expert from the reset until its phase is where `subtask` starts (None if it never is)."""
-    from policy_composer.tasks.gear_expert import ExpertConfig, GearAssemblyExpert
+    from policy_composer.tasks.gear_assembly.expert import ExpertConfig, GearAssemblyExpert
 
     env.reset(seed=seed)
     expert = GearAssemblyExpert(env, ExpertConfig(closed_loop=False))
@@ -132,7 +130,7 @@ class TrialRunner:
 
     def __call__(self, item: tuple[str, str, int]) -> Trial:
         from policy_composer.policies.library import build_library, cameras_needed
-        from policy_composer.tasks.rollout import make_env
+        from policy_composer.tasks.gear_assembly.rollout import make_env
 
         row, column, seed = item
         if row not in self.built:

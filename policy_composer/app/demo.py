@@ -22,8 +22,8 @@ from policy_composer.data import interrupt
 from policy_composer.data.lock import one_writer
 from policy_composer.policies.cnn.configuration_cnn import CORRECTIONS, DEMONSTRATIONS, CNNPolicyConfig
 from policy_composer.selector.configuration import ComposeConfig
-from policy_composer.tasks.spec import CAMERA_NAMES as CAMERAS
-from policy_composer.tasks.spec import SUBTASK_COLUMNS
+from policy_composer.tasks.gear_assembly.spec import CAMERA_NAMES as CAMERAS
+from policy_composer.tasks.gear_assembly.spec import SUBTASK_COLUMNS
 
 # The controllers that `--insertion straight` changes: the paper's open-loop insertions.
 STRAIGHT = ("mp_insert", "dmp_insert")
@@ -128,7 +128,7 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
     from policy_composer.policies.library import LIBRARY_REVISION, all_names
     from policy_composer.policies.registry import kinds
     from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, PredicateConfig, VAEConfig
-    from policy_composer.tasks.gear_assembly import TASK_REVISION
+    from policy_composer.tasks.gear_assembly.env import TASK_REVISION
 
     insertion = load_recipe("gear-insertion-demos")
     transport = load_recipe("gear-transport-demos")
@@ -291,7 +291,7 @@ def _dagger_record(recipe, p: Profile, workers: int, policy: str, seed: int, out
 def _record(recipe, out: Path, episodes: int, resolution: int, workers: int, sources=None, seed: int = 0) -> dict:
     from policy_composer.app.record import record_recipe
     from policy_composer.data.catalog import summarize
-    from policy_composer.tasks.spec import EnvSettings
+    from policy_composer.tasks.gear_assembly.spec import EnvSettings
 
     root = out / "dataset"
     resume = (root / "meta" / "info.json").exists()
@@ -324,7 +324,7 @@ def _sources(inputs: dict[str, Path], insertion: str = "feel", cnn: str = "cnn")
 def _fit_dmp(out: Path, episodes: int) -> dict:
     from policy_composer.policies.dmp.configuration_dmp import FIT_FIRST_SEED
     from policy_composer.policies.dmp.controller import fit_dmp_library
-    from policy_composer.tasks.rollout import make_env
+    from policy_composer.tasks.gear_assembly.rollout import make_env
 
     env = make_env("state_dict")
     try:

@@ -26,8 +26,8 @@ from policy_composer.policies.library import (
     check_models,
     model_ids,
 )
-from policy_composer.tasks.rollout import make_env
-from policy_composer.tasks.spec import CONTROL_FREQ, EXPERT_PHASES, EnvSettings
+from policy_composer.tasks.gear_assembly.rollout import make_env
+from policy_composer.tasks.gear_assembly.spec import CONTROL_FREQ, EXPERT_PHASES, EnvSettings
 
 
 @dataclass
@@ -160,7 +160,7 @@ class EpisodeRecorder:
     def __init__(self, recipe: Recipe, settings: EnvSettings, sources: LibrarySources,
                  controllers: tuple[str, ...]):
         from policy_composer.data.recorder import FrameBuffer
-        from policy_composer.tasks.gear_expert import GearAssemblyExpert
+        from policy_composer.tasks.gear_assembly.expert import GearAssemblyExpert
 
         # A resumed dataset keeps its cameras; a controller added to it may read more: rendered, not recorded.
         rendered = tuple(dict.fromkeys((*settings.cameras, *cameras_needed(controllers, sources))))
@@ -183,7 +183,7 @@ class EpisodeRecorder:
 
     def _expert(self, seed: int) -> RecordedEpisode | None:
         """The scripted expert from the seed's reset, recording the recipe's phases."""
-        from policy_composer.tasks.rollout import episode_limit
+        from policy_composer.tasks.gear_assembly.rollout import episode_limit
 
         recipe, buffer, expert = self.recipe, self.buffer, self.expert
         obs, _ = buffer.reset(seed=seed, options=recipe.reset_options())
@@ -211,7 +211,7 @@ class EpisodeRecorder:
         (where the policy's command collided, say); a back-off is left out after its first step, since the
         controller does not choose it (its guard does)."""
         from policy_composer.app.controller_table import START_PHASE, expert_until
-        from policy_composer.tasks.rollout import episode_limit
+        from policy_composer.tasks.gear_assembly.rollout import episode_limit
 
         recipe, buffer, expert = self.recipe, self.buffer, self.expert
         controller = self.library[recipe.controllers[0]]

@@ -9,7 +9,7 @@ from pathlib import Path
 from policy_composer.data import journal
 from policy_composer.data.features import DatasetError, read_info, read_sidecar, verify_dataset
 from policy_composer.data.lock import one_writer
-from policy_composer.tasks.spec import ENV_ID, STATE_NAMES
+from policy_composer.tasks.gear_assembly.spec import ENV_ID, STATE_NAMES
 
 REPO_ID = re.compile(r"^[A-Za-z0-9][\w.-]*/[A-Za-z0-9][\w.-]*$")
 

@@ -11,7 +11,7 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from policy_composer.tasks.spec import ACTION_NAMES, CAMERA_NAMES, PREDICATES, STATE_NAMES
+from policy_composer.tasks.gear_assembly.spec import ACTION_NAMES, CAMERA_NAMES, PREDICATES, STATE_NAMES
 
 if TYPE_CHECKING:  # pyarrow is imported where a dataset is read
     import pyarrow as pa

@@ -10,7 +10,13 @@ from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
 
 from policy_composer.data.features import read_info, read_sidecar
-from policy_composer.tasks.spec import CAMERA_NAMES, EXPERT_PHASES, GOAL_FLAGS, GRASP_OFFSET_MM, START_STATES
+from policy_composer.tasks.gear_assembly.spec import (
+    CAMERA_NAMES,
+    EXPERT_PHASES,
+    GOAL_FLAGS,
+    GRASP_OFFSET_MM,
+    START_STATES,
+)
 
 RECIPE_DIR = Path(__file__).resolve().parents[2] / "datasets" / "recipes"
 DRIVERS = ("expert", "controllers", "dagger")
@@ -59,7 +65,7 @@ class ExpertSettings:
 
     def config(self):
         """The scripted expert's ExpertConfig for these settings (the simulator loads only when it is asked for)."""
-        from policy_composer.tasks.gear_expert import ExpertConfig
+        from policy_composer.tasks.gear_assembly.expert import ExpertConfig
 
         return ExpertConfig(grasp_offset=self.grasp_offset_mm / 1000.0, teleop=self.teleop,
                             arrival_error=self.arrival_error_mm / 1000.0, noise=self.noise_mm / 1000.0,

@@ -1,7 +1,7 @@
 """GearAssembly-v1 as a LeRobot env type: `lerobot-eval --env.type=gear_assembly --env.task=insert|full`.
 
 LeRobot imports this package at start-up (it imports installed distributions named `lerobot_env_*`), which
-registers the config below; the env is `policy_composer.tasks.lerobot_env.GearAssemblyLeRobotEnv`.
+registers the config below; the env is `policy_composer.tasks.gear_assembly.lerobot_env.GearAssemblyLeRobotEnv`.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
 from lerobot.utils.constants import ACTION, OBS_IMAGES, OBS_STATE
 
-from policy_composer.tasks.spec import ACTION_NAMES, CAMERA_NAMES, STATE_NAMES
+from policy_composer.tasks.gear_assembly.spec import ACTION_NAMES, CAMERA_NAMES, STATE_NAMES
 
 
 @EnvConfig.register_subclass("gear_assembly")
@@ -31,7 +31,7 @@ class GearAssemblyEnv(EnvConfig):
 
     def __post_init__(self):
         from policy_composer.learning.config import refuse
-        from policy_composer.tasks.lerobot_env import check_settings
+        from policy_composer.tasks.gear_assembly.lerobot_env import check_settings
 
         try:  # here, before lerobot-eval loads the policy, rather than when it builds the env
             check_settings(self.task, self.resolution, self.cameras, self.clearance_mm, self.episode_length)
@@ -79,7 +79,7 @@ class GearAssemblyEnv(EnvConfig):
             logging.warning(f"gear_assembly: the policy at {policy} will not see what it was trained on: {problem}")
         from gymnasium.vector import AutoresetMode
 
-        from policy_composer.tasks.lerobot_env import GearAssemblyLeRobotEnv
+        from policy_composer.tasks.gear_assembly.lerobot_env import GearAssemblyLeRobotEnv
 
         make = partial(GearAssemblyLeRobotEnv, **self.gym_kwargs)
         if use_async_envs and n_envs > 1:

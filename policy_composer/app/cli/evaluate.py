@@ -20,14 +20,14 @@ from policy_composer.app.cli.options import (
 )
 from policy_composer.policies.registry import kinds
 from policy_composer.selector.configuration import SENSES
-from policy_composer.tasks.spec import CAMERA_NAMES, SUBTASK_COLUMNS
+from policy_composer.tasks.gear_assembly.spec import CAMERA_NAMES, SUBTASK_COLUMNS
 
 
 def cmd_evaluate_expert(args: argparse.Namespace) -> int:
     """Full-task success of the scripted expert over many seeds (state observations: no rendering)."""
     from tqdm import tqdm
 
-    from policy_composer.tasks.rollout import run_episode
+    from policy_composer.tasks.gear_assembly.rollout import run_episode
 
     env = make_env("state_dict", args)
     expert = make_expert(env, args)

@@ -30,7 +30,7 @@ def cmd_expert(args: argparse.Namespace) -> int:
     import imageio
     from tqdm import tqdm
 
-    from policy_composer.tasks.rollout import episode_limit, run_episode
+    from policy_composer.tasks.gear_assembly.rollout import episode_limit, run_episode
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -8,7 +8,7 @@ from pathlib import Path
 from policy_composer.app.arguments import at_least, between
 from policy_composer.policies.library import MODELS, LeRobotSource, LibrarySources
 from policy_composer.policies.registry import LibraryError, kinds
-from policy_composer.tasks.spec import CLEARANCE_MM, GRASP_OFFSET_MM, RESOLUTION, EnvSettings
+from policy_composer.tasks.gear_assembly.spec import CLEARANCE_MM, GRASP_OFFSET_MM, RESOLUTION, EnvSettings
 
 DEFAULT_GRASP_OFFSET_MM = LibrarySources.max_grasp_offset * 1000  # the expert's and the pick-up's
 WORLD = str(MODELS / "world")  # the world model and goal scorers' folder
@@ -86,13 +86,13 @@ def insertion(value: str) -> str:
 
 
 def make_env(obs_mode: str, args: argparse.Namespace, cameras: tuple[str, ...] | None = None, **kwargs):
-    from policy_composer.tasks.rollout import make_env
+    from policy_composer.tasks.gear_assembly.rollout import make_env
 
     return make_env(obs_mode, args.resolution, args.clearance, cameras, **kwargs)
 
 
 def make_expert(env, args: argparse.Namespace):
-    from policy_composer.tasks.gear_expert import ExpertConfig, GearAssemblyExpert
+    from policy_composer.tasks.gear_assembly.expert import ExpertConfig, GearAssemblyExpert
 
     return GearAssemblyExpert(env, ExpertConfig(grasp_offset=args.grasp_offset / 1000.0,
                                                 closed_loop=not getattr(args, "open_loop", False)))

@@ -9,7 +9,7 @@ from pathlib import Path
 from policy_composer.app.arguments import at_least, names
 from policy_composer.app.cli.options import env_options, episode_workers, library_sources, model_options, workers_option
 from policy_composer.data.recipes import available_recipes
-from policy_composer.tasks.spec import EnvSettings
+from policy_composer.tasks.gear_assembly.spec import EnvSettings
 
 
 def cmd_record(args: argparse.Namespace) -> int:

@@ -12,7 +12,7 @@ from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 from policy_composer.policies.dmp.configuration_dmp import FIT_EPISODES, FIT_FIRST_SEED
 from policy_composer.policies.library import MODELS
 from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, PredicateConfig, VAEConfig
-from policy_composer.tasks.spec import CAMERA_NAMES
+from policy_composer.tasks.gear_assembly.spec import CAMERA_NAMES
 
 
 def cmd_train_policy(args: argparse.Namespace) -> int:

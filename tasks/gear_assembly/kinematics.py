@@ -9,7 +9,7 @@ import sapien
 from transforms3d.euler import euler2quat
 from transforms3d.quaternions import quat2mat
 
-from policy_composer.tasks.gear_geometry import GearSpec
+from policy_composer.tasks.gear_assembly.geometry import GearSpec
 from policy_composer.tasks.panda import PANDA_URDF, TCP_LINK, ArmIK
 
 LEFT_BASE = sapien.Pose(p=[0.0, -0.7, 0.0], q=euler2quat(0, 0, np.pi / 2))

@@ -14,7 +14,7 @@ import numpy as np
 import sapien
 from transforms3d.euler import euler2quat
 
-from policy_composer.tasks.spec import CLEARANCE_MM
+from policy_composer.tasks.gear_assembly.spec import CLEARANCE_MM
 
 BRASS = [0.80, 0.62, 0.22, 1.0]
 COPPER = [0.85, 0.40, 0.15, 1.0]

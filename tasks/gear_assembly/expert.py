@@ -18,8 +18,8 @@ import numpy as np
 import sapien
 import torch
 
-from policy_composer.tasks.gear_assembly import GearAssemblyEnv
-from policy_composer.tasks.gear_kinematics import LeftArmIK, plate_direction
+from policy_composer.tasks.gear_assembly.env import GearAssemblyEnv
+from policy_composer.tasks.gear_assembly.kinematics import LeftArmIK, plate_direction
 from policy_composer.tasks.panda import hand_down_quat
 
 GRIPPER_OPEN = 1.0  # normalised gripper commands (see ACTION_NAMES)

@@ -9,12 +9,12 @@ from typing import Protocol
 import numpy as np
 import torch
 
-from policy_composer.tasks.spec import EnvSettings
+from policy_composer.tasks.gear_assembly.spec import EnvSettings
 
 
 class Policy(Protocol):
     """Anything that gives the next flat 16-D action of GearAssembly-v1
-    (see policy_composer.tasks.gear_assembly.ACTION_NAMES)."""
+    (see policy_composer.tasks.gear_assembly.env.ACTION_NAMES)."""
 
     name: str
 
@@ -31,7 +31,7 @@ def make_env(obs_mode: str, resolution: int = EnvSettings.resolution, clearance_
     """GearAssembly-v1 with square cameras of `resolution` pixels (all three unless `cameras` names some)."""
     import gymnasium as gym
 
-    import policy_composer.tasks.gear_assembly  # noqa: F401  (registers GearAssembly-v1)
+    import policy_composer.tasks.gear_assembly.env  # noqa: F401  (registers GearAssembly-v1)
 
     if cameras is not None:
         kwargs["cameras"] = tuple(cameras)

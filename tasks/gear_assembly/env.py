@@ -41,10 +41,15 @@ from mani_skill.utils.structs.pose import Pose
 from transforms3d.euler import euler2quat
 
 from policy_composer.tasks import panda_light  # noqa: F401  (registers the "panda_light" agent)
-from policy_composer.tasks.gear_geometry import GearSpec, build_gear, build_peg_module
-from policy_composer.tasks.gear_kinematics import LEFT_BASE, RIGHT_BASE, LeftArmIK, module_in_hand, plate_direction
-from policy_composer.tasks.panda import REST_QPOS
-from policy_composer.tasks.spec import (  # noqa: F401
+from policy_composer.tasks.gear_assembly.geometry import GearSpec, build_gear, build_peg_module
+from policy_composer.tasks.gear_assembly.kinematics import (
+    LEFT_BASE,
+    RIGHT_BASE,
+    LeftArmIK,
+    module_in_hand,
+    plate_direction,
+)
+from policy_composer.tasks.gear_assembly.spec import (  # noqa: F401
     ACTION_NAMES,
     ARM_JOINTS,
     CAMERA_NAMES,
@@ -54,6 +59,7 @@ from policy_composer.tasks.spec import (  # noqa: F401
     START_STATES,
     STATE_NAMES,
 )
+from policy_composer.tasks.panda import REST_QPOS
 
 SUPPORTED_ROBOTS = (("panda_light", "panda_light"), ("panda", "panda"))
 SUPPORTED_CONTROL_MODES = ("pd_joint_pos", "pd_joint_delta_pos")  # the first is the default

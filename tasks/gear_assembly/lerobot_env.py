@@ -13,8 +13,8 @@ import numpy as np
 import torch
 from gymnasium import spaces
 
-from policy_composer.tasks.rollout import make_env, tile_cameras
-from policy_composer.tasks.spec import ACTION_NAMES, CAMERA_NAMES, CLEARANCE_MM, RESOLUTION, STATE_NAMES
+from policy_composer.tasks.gear_assembly.rollout import make_env, tile_cameras
+from policy_composer.tasks.gear_assembly.spec import ACTION_NAMES, CAMERA_NAMES, CLEARANCE_MM, RESOLUTION, STATE_NAMES
 
 # Each task: where an episode starts (GearAssembly-v1's start states), its step limit and LeRobot's task string.
 # The insertion starts at the pre-insertion pose with a random grasp offset, as Table I's insert column does; its

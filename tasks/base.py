@@ -1,0 +1,161 @@
+"""What a task gives the library of controllers, and what the library asks of it, whatever the task.
+
+A task is described by a `TaskDescription`: its env and the arm the controllers drive, its cameras and the names of
+its state and action entries, its predicates (what initiation sets, terminations and guards are made of), its
+subtasks as waypoints (`Subtask`), the scene as the robot knows it (`Scene`: its own kinematics and what the planner
+may know), and the privileged truth kept apart (`truth`: the simulator's predicates, for labels and the oracle). The
+controller kinds, the recorder, the world model and the selector read a task through this description only; each
+task's own package under `tasks/` fills it in.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Protocol
+
+import numpy as np
+
+if TYPE_CHECKING:  # the description is read without the simulator, torch or the collision library
+    import pinocchio as pin
+    import torch
+
+    from policy_composer.tasks.scene import Obstacle
+
+THRESHOLD = 0.5  # a predicate holds where its probability is at least this
+
+
+def np0(x: torch.Tensor) -> np.ndarray:
+    """Env 0 of a batched tensor, as float64 numpy."""
+    return x[0].detach().cpu().numpy().astype(np.float64)
+
+
+@dataclass(frozen=True)
+class Percept:
+    """Each predicate's probability at one observation, and where they came from ("learned" or "oracle")."""
+
+    probabilities: dict[str, float]
+    source: str
+
+    def __getitem__(self, name: str) -> bool:
+        return self.probabilities[name] >= THRESHOLD
+
+    def why(self, *names: str) -> str:
+        """The named predicates as the decision log states them: `gear_on_peg=no (learned p=0.12)`."""
+        return ", ".join(f"{n}={'yes' if self[n] else 'no'} ({self.source} p={self.probabilities[n]:.2f})"
+                         for n in names)
+
+
+class PlanningError(RuntimeError):
+    """No way through a subtask was found: no IK solution, or no collision-free path (or its start or goal is in
+    collision)."""
+
+
+@dataclass
+class Waypoint:
+    kind: str  # "free": around obstacles; "line": straight TCP line; "hold": stay (the gripper changes)
+    q: np.ndarray  # (9,) goal configuration
+    gripper: float
+    tcp: np.ndarray | None = None  # goal TCP position (lines)
+    quat: np.ndarray | None = None
+    step: float = 0.004  # TCP travel per control step on a line (m)
+    settle: int = 4  # control steps holding the goal afterwards
+    probe: bool = False  # a way that contact may block (a part on another's top): the controller feels for it
+
+
+class Scene(Protocol):
+    """Where things are as the robot knows them (world frame): its hand from its joints, the rest from what the task
+    lets it know. `planner_noise` (m) is the noise on the one privileged input a task's planner may be given."""
+
+    planner_noise: float
+
+    def seed(self, seed: int | None) -> None:
+        """Draw the planner input's noise of an activation from `seed`."""
+
+    def tcp(self) -> np.ndarray:
+        """The driven arm's TCP position."""
+
+    def finger_dir(self) -> np.ndarray:
+        """The level direction the fingers close along when the hand points down."""
+
+    def planning_obstacles(self) -> list[Obstacle]:
+        """The scene as the planner knows it."""
+
+    def guard_obstacles(self) -> list[Obstacle]:
+        """What no command of a learned controller may put the arm into (not what its task touches)."""
+
+    def held_part(self, widen: float, lengthen: float) -> tuple[float, float, pin.SE3]:
+        """The held part, at the nominal grasp, as a cylinder `widen` (m) wider in radius and `lengthen` longer than
+        it: (radius, length, its centre's pose in the TCP frame, the cylinder's axis its z)."""
+
+
+class Subtask:
+    """A subtask as waypoints: what a controller must reach, independent of how it moves; an initiation set and a
+    success test made of the task's predicates as the controller perceives them (a `Percept`)."""
+
+    name = ""
+    initiation = ""
+    releases = False  # whether it ends with the part let go (else: held, as the next subtask needs it)
+    holds_part = False  # whether the part is in the hand on the way (the planner attaches it)
+    # Offsets (m) to assume in turn, each time a probing waypoint is blocked; () draws the pick-up's perception error.
+    search: tuple[float, ...] = ()
+
+    def can_start(self, percept: Percept) -> bool:
+        raise NotImplementedError
+
+    def waypoints(self, ik, scene: Scene, q_now: np.ndarray, grasp_offset: float,
+                  percept: Percept) -> list[Waypoint]:
+        """The way through the subtask for a part (to be) held `grasp_offset` along the fingers."""
+        raise NotImplementedError
+
+    def retry(self, ik, scene: Scene, q_now: np.ndarray, grasp_offset: float, percept: Percept) -> list[Waypoint]:
+        """The way from a blocked probe for the next guess (the same waypoints as the first)."""
+        return self.waypoints(ik, scene, q_now, grasp_offset, percept)
+
+    def succeeded(self, percept: Percept) -> tuple[bool, str]:
+        raise NotImplementedError
+
+    def release_blocked(self, percept: Percept, scene: Scene) -> str:
+        """Why the gripper must not open now ("" if it may)."""
+        return ""
+
+    def off_course(self, percept: Percept, finished: bool) -> str:
+        """Why a controller of this subtask must stop now and back off with the part, though it would go on
+        (`finished`: it has nothing more to do) ("" if it need not)."""
+        return ""
+
+    def back_off(self, ik, scene: Scene, q_now: np.ndarray) -> np.ndarray:
+        """Joint targets (T, 7), gripper closed, from a blocked release back to where the subtask starts."""
+        return np.zeros((0, 7))
+
+
+@dataclass(frozen=True)
+class TaskDescription:
+    """One task as the library reads it (see the module docstring)."""
+
+    name: str  # the command line's name: `--task NAME`
+    env_id: str
+    arm: str  # the env's attribute of the arm the controllers drive (an agent with `.robot` and `.tcp`)
+    cameras: tuple[str, ...]
+    state_names: tuple[str, ...]  # observation.state; its first 8 are the driven arm's 7 joints and gripper width
+    action_names: tuple[str, ...]  # the flat action; its first 8 are the driven arm's 7 joint targets and gripper
+    predicates: Mapping[str, str]  # name -> what it says
+    progress: tuple[str, ...]  # the predicates that say how far the task went, in the order it reaches them
+    grasped: str  # the predicate that says the part is in the hand
+    subtasks: Mapping[str, Subtask]
+    sequence: tuple[str, ...]  # the full task, when nothing goes wrong
+    insertions: Mapping[str, Subtask]  # how the planned controllers may serve the last subtask of `sequence`
+    scene: Callable[[Any], Scene]  # env -> the scene as the robot knows it
+    truth: Callable[[Any], dict[str, torch.Tensor]]  # env -> each predicate, (B,) bool: privileged
+    hold_action: Callable[[Any], torch.Tensor]  # env -> the flat action that holds every joint where it is
+    env_action: Callable[[Any, torch.Tensor], Any]  # (env, flat action) -> what env.step takes
+    whereabouts: Callable[[dict], str]  # an env's info -> where the part is, in words (the compositions' log)
+    stage: Callable[[dict], int]  # an env's info -> how many of the task's stages it has reached
+    instruction: str = ""  # what the task asks, in words (LeRobot's `task` string)
+    insertion_windows: Mapping[str, tuple[float, float, float]] = field(default_factory=dict)
+
+    def subtask(self, name: str, insertion: str | None = None) -> Subtask:
+        """The subtask `name`, its last one as `insertion` says (a key of `insertions`)."""
+        if insertion is not None and name == self.sequence[-1]:
+            return self.insertions[insertion]
+        return self.subtasks[name]
