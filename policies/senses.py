@@ -53,4 +53,4 @@ class OracleSenses(CachedSenses):
 
     def perceive(self, obs) -> Percept:
         flags = self.task.truth(self.env)
-        return Percept({name: float(flags[name][0]) for name in self.task.predicates}, self.source)
+        return Percept({name: float(flags[name][0]) for name in self.task.spec.predicates}, self.source)

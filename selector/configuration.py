@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from policy_composer.learning.config import BACKBONES, TrainingConfig, check_options, option
-from policy_composer.tasks.gear_assembly.spec import CAMERA_NAMES, PREDICATES
+from policy_composer.tasks.registry import get_spec
 
 GOAL_SCORES = ("image", "latent")  # what the selector's goal score reads: each prediction decoded, or the latent
 # Where the library's controllers have the task's predicates from: classifiers of the cameras and joints, or the
@@ -18,17 +18,32 @@ GOAL_SCORES = ("image", "latent")  # what the selector's goal score reads: each 
 SENSES = ("learned", "oracle")
 
 
+def check_cameras(config, cameras: tuple[str, ...]) -> None:
+    """Refuse cameras the config's task does not have, naming those it has."""
+    spec = get_spec(config.task)
+    unknown = [c for c in cameras if c not in spec.cameras]
+    if unknown or not cameras:
+        raise ValueError(f"{type(config).__name__}: {spec.env_id} has the cameras {list(spec.cameras)}, not "
+                         f"{list(cameras)}")
+
+
 @dataclass
 class VAEConfig(TrainingConfig):
-    """The latent state s_t: a variational autoencoder of one camera's images. The paper uses the head camera;
-    here the arm hides the insertion from it (its goal score is the same for a gear held above the peg and one
-    seated on it), so the selector sees through the left forearm camera, which watches the gear in the hand."""
+    """The latent state s_t: a variational autoencoder of one camera's images. The paper uses the head camera; on
+    the gear the arm hides the insertion from it (its goal score is the same for a gear held above the peg and one
+    seated on it), so the selector sees through the left forearm camera, which watches the gear in the hand (each
+    task's `latent_camera`)."""
 
-    camera: str = option("left_forearm", "the camera whose images make the latent state", CAMERA_NAMES)
+    camera: str = option("", "the camera whose images make the latent state (default: the task's)", camera=True)
     image_size: int = option(64, "images are resized to this square", minimum=16)
     latent_dim: int = option(32, "size of the latent state", minimum=1)
     beta: float = 1.0  # weight of the KL term against the per-image reconstruction error (summed over pixels)
     epochs: int = option(30, "VAE training epochs", minimum=1)
+
+    def __post_init__(self):
+        super().__post_init__()
+        self.camera = self.camera or get_spec(self.task).latent_camera
+        check_cameras(self, (self.camera,))
 
 
 @dataclass
@@ -50,7 +65,7 @@ class DynamicsConfig(TrainingConfig):
 class GoalScoreConfig(TrainingConfig):
     """G: a CNN with a mixture density head over task progress, trained on full-task demonstrations."""
 
-    camera: str = option("head", "the camera the goal score sees", CAMERA_NAMES)
+    camera: str = option("", "the camera the goal score sees (default: the task's)", camera=True)
     image_size: int = option(64, "images are resized to this square", minimum=16)
     backbone: str = option("small", "image encoder", BACKBONES)
     hidden_dim: int = 256
@@ -59,6 +74,11 @@ class GoalScoreConfig(TrainingConfig):
     weight_decay: float = 1e-6
     batch_size: int = option(120, "minibatch size", minimum=1)
     epochs: int = option(60, "goal-score training epochs", minimum=1)
+
+    def __post_init__(self):
+        super().__post_init__()
+        self.camera = self.camera or get_spec(self.task).goal_camera
+        check_cameras(self, (self.camera,))
 
 
 @dataclass
@@ -76,11 +96,11 @@ class LatentGoalScoreConfig(TrainingConfig):
 
 @dataclass
 class PredicateConfig(TrainingConfig):
-    """One of the task's predicates (PREDICATES) as a robot has it: a binary classifier of the cameras' images,
-    stacked, and the joint state, trained on the recordings' labels."""
+    """One of the task's predicates as a robot has it: a binary classifier of the cameras' images, stacked, and the
+    joint state, trained on the recordings' labels."""
 
-    predicate: str = option("gear_seated", "the predicate", tuple(PREDICATES))
-    cameras: tuple[str, ...] = ("head", "left_forearm")  # the cameras of every recording they train on
+    predicate: str = option("", "the predicate (one of the task's)")
+    cameras: tuple[str, ...] = ()  # the cameras of every recording they train on (default: the task's)
     image_size: int = option(64, "images are resized to this square", minimum=16)
     hidden_dim: int = 128
     shift: int = 4  # random-shift augmentation (pixels)
@@ -89,11 +109,13 @@ class PredicateConfig(TrainingConfig):
     epochs: int = option(6, "predicate training epochs", minimum=1)
 
     def __post_init__(self):
-        self.cameras = tuple(self.cameras)  # a list when read back from JSON
-        unknown = [c for c in self.cameras if c not in CAMERA_NAMES]
-        if unknown or not self.cameras:
-            raise ValueError(f"a predicate reads some of the cameras {list(CAMERA_NAMES)}, not {list(self.cameras)}")
         super().__post_init__()
+        spec = get_spec(self.task)
+        self.cameras = tuple(self.cameras) or spec.predicate_cameras  # a list when read back from JSON
+        check_cameras(self, self.cameras)
+        if self.predicate and self.predicate not in spec.predicates:
+            raise ValueError(f"PredicateConfig.predicate must be one of {spec.env_id}'s {', '.join(spec.predicates)}, "
+                             f"not {self.predicate!r}")
 
 
 @dataclass

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
-from functools import cache
 from pathlib import Path
 
 import torch
@@ -24,54 +23,48 @@ from policy_composer.learning.layers import image_encoder
 from policy_composer.learning.training import adam, fit_epochs
 from policy_composer.policies.senses import THRESHOLD, CachedSenses, Percept
 from policy_composer.selector.configuration import PredicateConfig
-from policy_composer.tasks.gear_assembly.env import GRASP_OFFSET_MAX, PRE_INSERT_RADIUS
-from policy_composer.tasks.gear_assembly.geometry import GearSpec
-from policy_composer.tasks.gear_assembly.kinematics import HandToPeg
-from policy_composer.tasks.gear_assembly.spec import PREDICATES, STATE_NAMES
+from policy_composer.tasks.base import TaskDescription
+from policy_composer.tasks.registry import get_task
 
 TRAIN_HINT = "policy-composer train predicates"
 HELD_OUT_EVERY = 5  # every fifth episode of each dataset is held out of the training, for the figures
-# What the classifiers know of the robot besides the cameras: its joint state, and where its left hand is over the peg
-# by both arms' forward kinematics.
-PROPRIOCEPTION = (*STATE_NAMES, "hand_to_peg_x", "hand_to_peg_y", "hand_to_peg_z")
-# A gear in the fingers is at most the pick-up's error along them off the hand: held farther than this from the peg's
-# axis by kinematics, it is neither at the pre-insertion pose nor on the peg, whatever the images look like.
-HELD_GEAR_REACH = PRE_INSERT_RADIUS + GRASP_OFFSET_MAX
+def proprioception_names(task: TaskDescription) -> tuple[str, ...]:
+    """What the classifiers know of the robot besides the cameras: its joint state, and what the task's kinematics
+    add (on the gear: where the left hand is over the peg by both arms' forward kinematics)."""
+    return (*task.spec.state_names, *task.extra_proprioception)
 
 
-@cache
-def _hand_to_peg() -> HandToPeg:
-    return HandToPeg(GearSpec())
-
-
-def proprioception(state: torch.Tensor) -> torch.Tensor:
-    """(N, len(PROPRIOCEPTION)) float32 of joint states (N, 16)."""
-    hand = torch.as_tensor(_hand_to_peg()(state.double().numpy()), dtype=torch.float32)
-    return torch.cat([state.float(), hand], dim=-1)
+def proprioception(state: torch.Tensor, task: TaskDescription) -> torch.Tensor:
+    """(N, len(proprioception_names(task))) float32 of joint states (N, S)."""
+    if task.proprioception is None:
+        return state.float()
+    extra = torch.as_tensor(task.proprioception(state.double().numpy()), dtype=torch.float32)
+    return torch.cat([state.float(), extra], dim=-1)
 
 
 class PredicateModel(nn.Module):
     """P(predicate | the cameras' images, proprioception): the images stacked as channels through a small CNN, the
-    standardised PROPRIOCEPTION through a linear layer, both into a logit."""
+    standardised proprioception through a linear layer, both into a logit."""
 
     def __init__(self, config: PredicateConfig):
         super().__init__()
         self.config = config
         self.encoder = image_encoder("small", config.hidden_dim, in_channels=3 * len(config.cameras))
-        self.state = nn.Sequential(nn.Linear(len(PROPRIOCEPTION), config.hidden_dim), nn.ReLU())
+        size = len(proprioception_names(get_task(config.task)))
+        self.state = nn.Sequential(nn.Linear(size, config.hidden_dim), nn.ReLU())
         self.head = nn.Sequential(nn.Linear(2 * config.hidden_dim, config.hidden_dim), nn.ReLU(),
                                   nn.Linear(config.hidden_dim, 1))
-        self.register_buffer("state_mean", torch.zeros(len(PROPRIOCEPTION)))
-        self.register_buffer("state_std", torch.ones(len(PROPRIOCEPTION)))
+        self.register_buffer("state_mean", torch.zeros(size))
+        self.register_buffer("state_std", torch.ones(size))
 
     def forward(self, images: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
-        """Logits (B,) of images (B, 3C, S, S) in [0, 1] and proprioception (B, len(PROPRIOCEPTION))."""
+        """Logits (B,) of images (B, 3C, S, S) in [0, 1] and proprioception (B, len(proprioception_names(task)))."""
         features = torch.cat([self.encoder(images), self.state((state - self.state_mean) / self.state_std)], -1)
         return self.head(features)[:, 0]
 
     @torch.no_grad()
     def probability(self, images: torch.Tensor, state: torch.Tensor, batch: int = 512) -> torch.Tensor:
-        """P for uint8 images (B, 3C, S, S) and proprioception (B, len(PROPRIOCEPTION))."""
+        """P for uint8 images (B, 3C, S, S) and proprioception (B, len(proprioception_names(task)))."""
         return torch.cat([torch.sigmoid(self(images[i:i + batch].float() / 255.0, state[i:i + batch].float()))
                           for i in range(0, len(images), batch)])
 
@@ -92,8 +85,7 @@ def held_out(episode_index: torch.Tensor) -> torch.Tensor:
 
 def train_predicate(images: torch.Tensor, state: torch.Tensor, labels: torch.Tensor, config: PredicateConfig,
                     progress: bool = True) -> tuple[PredicateModel, list[float]]:
-    """Fit one predicate's classifier to uint8 images (N, 3C, S, S), proprioception (N, len(PROPRIOCEPTION)) and 0/1
-    labels (N,)."""
+    """Fit one predicate's classifier to uint8 images (N, 3C, S, S), proprioception (N, P) and 0/1 labels (N,)."""
     torch.manual_seed(config.seed)
     model = PredicateModel(config)
     model.state_mean.copy_(state.float().mean(0))
@@ -119,23 +111,26 @@ def predicate_metrics(probability: torch.Tensor, labels: torch.Tensor) -> dict:
 
 
 def train_predicates(frames: dict[str, torch.Tensor], out: str | Path, config: PredicateConfig | None = None,
-                     predicates: tuple[str, ...] = tuple(PREDICATES), progress: bool = True,
+                     predicates: tuple[str, ...] | None = None, progress: bool = True,
                      resume: bool = False) -> dict[str, dict]:
     """One classifier per predicate on `frames` (`load_frames` of the labelled recordings, with the config's cameras,
     "observation.state", "predicates" and "held_out", the frames of `held_out` episodes), each judged on the held-out
     frames; returns each one's held-out figures and training time."""
     config = config or PredicateConfig()
+    task = get_task(config.task)
+    names = tuple(task.spec.predicates)
+    predicates = names if predicates is None else predicates
     out = Path(out)
     for name in predicates:
         check_out(out / "predicates" / name, PredicateConfig)
     images, labels = stacked(frames, config.cameras), frames["predicates"]
-    state = proprioception(frames["observation.state"])
+    state = proprioception(frames["observation.state"], task)
     test = frames["held_out"]
     if test.all():
         raise ValueError("the predicates need episodes to train on besides the held-out ones; record more episodes")
     results = {}
     for name in predicates:
-        column = list(PREDICATES).index(name)
+        column = names.index(name)
         path, predicate_config = out / "predicates" / name, replace(config, predicate=name)
         if resume and (log := finished(path, predicate_config)):
             results[name] = {**log.get("held_out", {}), "seconds": log["seconds"]}
@@ -155,14 +150,14 @@ def load_predicate(path: str | Path) -> PredicateModel:
     return load_checkpoint(path, PredicateConfig, PredicateModel, "predicate classifier", TRAIN_HINT)
 
 
-def load_predicates(root: str | Path) -> dict[str, PredicateModel]:
-    """Every predicate's classifier in `root`/predicates, or a CheckpointError naming what is missing."""
+def load_predicates(root: str | Path, task: TaskDescription) -> dict[str, PredicateModel]:
+    """Every predicate's classifier of the task in `root`/predicates, or a CheckpointError naming what is missing."""
     folder = Path(root) / "predicates"
-    missing = [n for n in PREDICATES if not (folder / n / "config.json").is_file()]
+    missing = [n for n in task.spec.predicates if not (folder / n / "config.json").is_file()]
     if missing:
         raise CheckpointError(f"{folder} has no classifier for {', '.join(missing)}: the controllers cannot sense "
                               f"them; train them with `{TRAIN_HINT}` (or compose with --senses oracle)")
-    models = {n: load_predicate(folder / n) for n in PREDICATES}
+    models = {n: load_predicate(folder / n) for n in task.spec.predicates}
     sizes = {m.config.image_size for m in models.values()}
     if len(sizes) > 1:
         raise CheckpointError(f"the predicate classifiers in {folder} read images of different sizes {sorted(sizes)}; "
@@ -178,6 +173,7 @@ class LearnedSenses(CachedSenses):
     def __init__(self, models: dict[str, PredicateModel]):
         super().__init__()
         self.models = models
+        self.task = get_task(next(iter(models.values())).config.task)
         self.cameras = tuple(dict.fromkeys(c for m in models.values() for c in m.config.cameras))
         self.size = next(iter(models.values())).config.image_size
 
@@ -189,12 +185,9 @@ class LearnedSenses(CachedSenses):
             raise ValueError(f"the predicate classifiers read cameras {missing}; make the env with them "
                              f"(and obs_mode='rgb')")
         images = {c: to_model_image(sensors[c]["rgb"][:1].cpu(), self.size) for c in self.cameras}
-        state = proprioception(obs["extra"]["state"][:1].cpu())
+        state = proprioception(obs["extra"]["state"][:1].cpu(), self.task)
         p = {name: float(torch.sigmoid(model(torch.cat([images[c] for c in model.config.cameras], 1), state))[0])
              for name, model in self.models.items()}
-        hand_to_peg = state[0, len(STATE_NAMES):]
-        if float(torch.linalg.norm(hand_to_peg[:2])) > HELD_GEAR_REACH:
-            p["gear_at_peg"] = 0.0
-            if p["gear_grasped"] >= THRESHOLD:
-                p["gear_on_peg"] = 0.0
+        if self.task.rule_out is not None:
+            p = self.task.rule_out(p, state[0, len(self.task.spec.state_names):].numpy())
         return Percept(p, self.source)

@@ -31,7 +31,7 @@ from policy_composer.selector.dynamics import train_dynamics
 from policy_composer.selector.goal_score import train_goal_score, train_latent_goal_score
 from policy_composer.selector.predicates import held_out, train_predicates
 from policy_composer.selector.vae import VAE, load_vae, train_vae
-from policy_composer.tasks.gear_assembly.spec import PREDICATES
+from policy_composer.tasks.registry import get_spec
 
 
 def demo_split(root: str | Path, split: str) -> list[int]:
@@ -166,7 +166,8 @@ def train_predicate_models(datasets: list[str | Path], out: str | Path, config: 
     check_distinct(datasets)
     with model_writer(out):
         frames = [load_frames(d, config.cameras, config.image_size,
-                              required={"predicates": (len(PREDICATES),), "observation.state": None},
+                              required={"predicates": (len(get_spec(config.task).predicates),),
+                                        "observation.state": None},
                               progress=progress) for d in datasets]
         keys = (*(image_key(c) for c in config.cameras), "observation.state", "predicates")
         joined = {k: torch.cat([f[k] for f in frames]) for k in keys}

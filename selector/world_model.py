@@ -28,6 +28,7 @@ from policy_composer.selector.goal_score import (
 )
 from policy_composer.selector.predicates import LearnedSenses, PredicateModel, load_predicates
 from policy_composer.selector.vae import VAE, load_vae
+from policy_composer.tasks.registry import get_task
 
 
 def check_trained_together(vae: Path, made_with: dict[Path, dict[str, str]]) -> None:
@@ -97,7 +98,7 @@ class GearWorldModel:
         models = {n: made_with[folder / n].get("controller") for n in names}
         goal_model = load_goal_score(goal) if goal_score == "image" else load_latent_goal_score(goal)
         return cls(vae, dynamics, goal_model, {n: m for n, m in models.items() if m},
-                   load_predicates(root) if predicates else None)
+                   load_predicates(root, get_task(vae.config.task)) if predicates else None)
 
     def senses(self, env, source: str) -> Senses:
         """What the library's controllers perceive the predicates with: "learned" (this world model's classifiers) or

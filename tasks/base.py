@@ -130,16 +130,40 @@ class Subtask:
 
 
 @dataclass(frozen=True)
-class TaskDescription:
-    """One task as the library reads it (see the module docstring)."""
+class TaskSpec:
+    """What a task shows and takes, and what its recordings and models are called, importable without the simulator:
+    the recipes, the models' configurations and the command line read it."""
 
     name: str  # the command line's name: `--task NAME`
     env_id: str
-    arm: str  # the env's attribute of the arm the controllers drive (an agent with `.robot` and `.tcp`)
     cameras: tuple[str, ...]
     state_names: tuple[str, ...]  # observation.state; its first 8 are the driven arm's 7 joints and gripper width
     action_names: tuple[str, ...]  # the flat action; its first 8 are the driven arm's 7 joint targets and gripper
     predicates: Mapping[str, str]  # name -> what it says
+    start_states: tuple[str, ...]  # where an episode may start (the reset option "start"), the first the default
+    expert_phases: tuple[str, ...]  # the scripted expert's phases, in order (a recipe records some of them)
+    goal_flags: tuple[str, ...]  # the env's `evaluate()` flags an episode may be recorded to reach
+    expert_settings: type  # the dataclass of a recipe's [expert] table; its `config()` is the expert's config
+    instruction: str  # what the task asks, in words (LeRobot's `task` string)
+    card: Mapping[str, str]  # the dataset card's words: "scene", "state_action", "stage", "success"
+    # The cameras each learned model sees unless its configuration says otherwise.
+    policy_camera: str
+    latent_camera: str
+    goal_camera: str
+    predicate_cameras: tuple[str, ...]
+    # The CNN policy of each subtask: the recipe of its demonstrations and the stages it learns from (None: all);
+    # and the recipe of its DAgger corrections.
+    demonstrations: Mapping[str, tuple[str, tuple[int, ...] | None]]
+    corrections: Mapping[str, str] = field(default_factory=dict)
+    insertion_windows: Mapping[str, tuple[float, float, float]] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class TaskDescription:
+    """One task as the library reads it (see the module docstring)."""
+
+    spec: TaskSpec
+    arm: str  # the env's attribute of the arm the controllers drive (an agent with `.robot` and `.tcp`)
     progress: tuple[str, ...]  # the predicates that say how far the task went, in the order it reaches them
     grasped: str  # the predicate that says the part is in the hand
     subtasks: Mapping[str, Subtask]
@@ -150,9 +174,15 @@ class TaskDescription:
     hold_action: Callable[[Any], torch.Tensor]  # env -> the flat action that holds every joint where it is
     env_action: Callable[[Any, torch.Tensor], Any]  # (env, flat action) -> what env.step takes
     whereabouts: Callable[[dict], str]  # an env's info -> where the part is, in words (the compositions' log)
+    # (env, its evaluate() or None) -> the recordings' privileged labels: the stage reached, the part's offset in the
+    # hand (3), each predicate (0 or 1)
+    labels: Callable[[Any, dict | None], tuple[int, np.ndarray, np.ndarray]]
     stage: Callable[[dict], int]  # an env's info -> how many of the task's stages it has reached
-    instruction: str = ""  # what the task asks, in words (LeRobot's `task` string)
-    insertion_windows: Mapping[str, tuple[float, float, float]] = field(default_factory=dict)
+    # The predicate classifiers' proprioception beyond observation.state: its names, and (N, state) -> (N, names);
+    # and how the kinematics it gives rule predicates out: (probabilities, one frame's extra entries) -> probabilities.
+    extra_proprioception: tuple[str, ...] = ()
+    proprioception: Callable[[np.ndarray], np.ndarray] | None = None
+    rule_out: Callable[[dict[str, float], np.ndarray], dict[str, float]] | None = None
 
     def subtask(self, name: str, insertion: str | None = None) -> Subtask:
         """The subtask `name`, its last one as `insertion` says (a key of `insertions`)."""

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from policy_composer.tasks.registry import TASKS
+
 ROOT = Path(__file__).resolve().parents[1]
 # The design card's folders, each a symlink under the one import root.
 CARD_FOLDERS = ("tasks", "policies", "selector")
@@ -17,19 +19,12 @@ CARD_FOLDERS = ("tasks", "policies", "selector")
 # controllers' bases) and sits above them; the generic layers reach a task only through its description. The tasks
 # package's root registers their envs with gymnasium, so it sits with them.
 TASK_PACKAGES = tuple(f"policy_composer.tasks.{p.name}" for p in sorted((ROOT / "tasks").iterdir())
-                      if (p / "__init__.py").is_file()) + ("policy_composer.tasks.random_walk",)
+                      if (p / "__init__.py").is_file())
 # The seven layers, lowest first: a module may import its own layer and the layers below it, never one above.
 LAYERS = {"task core": ("policy_composer.tasks",), "dataset I/O": ("policy_composer.data",),
           "learning kernel": ("policy_composer.learning",), "controllers": ("policy_composer.policies",),
           "selector": ("policy_composer.selector",), "tasks": TASK_PACKAGES, "application": ("policy_composer.app",)}
 GENERIC = ("task core", "dataset I/O", "learning kernel", "controllers", "selector")
-# The generic modules that still read one task's names directly, moving to its description (this list only shrinks).
-NAMES_A_TASK = {
-    "policy_composer.data.catalog", "policy_composer.data.features", "policy_composer.data.recipes",
-    "policy_composer.policies.cnn.configuration_cnn", "policy_composer.policies.random_walk",
-    "policy_composer.selector.configuration", "policy_composer.selector.predicates", "policy_composer.selector.train",
-    "policy_composer.selector.tabular",
-}
 
 
 def _under(module: str, prefix: str) -> bool:
@@ -88,7 +83,7 @@ def test_every_module_is_in_one_of_seven_layers_and_imports_downward():
             where = f"{path.relative_to(ROOT)}:{line}"
             if not target.startswith("policy_composer."):
                 bare.append(f"{where} imports {target}")
-            elif (layer(target) is None or layer(target) > layer(me)) and me not in NAMES_A_TASK:
+            elif layer(target) is None or layer(target) > layer(me):
                 upward.append(f"{where} ({list(LAYERS)[layer(me)]}) imports {target}")
     assert not unplaced, f"modules outside the seven layers: {unplaced}"
     assert not bare, "import through the root, policy_composer.*:\n" + "\n".join(bare)
@@ -97,8 +92,8 @@ def test_every_module_is_in_one_of_seven_layers_and_imports_downward():
 
 def test_the_generic_layers_name_no_task():
     """The controller kinds, the recorder, the world model and the selector read a task through its description
-    (`policy_composer.tasks.registry`): no generic module imports a task's package, and the list of those that still
-    do is no longer than it needs to be."""
+    (`policy_composer.tasks.registry`): no generic module imports a task's package, and every task the registry lists
+    is such a package."""
     naming = {}
     for path in source_files():
         me = module_name(path)
@@ -107,8 +102,8 @@ def test_the_generic_layers_name_no_task():
         tasks = sorted({t for _, t in imports(path) if any(_under(t, p) for p in TASK_PACKAGES)})
         if tasks:
             naming[me] = tasks
-    assert set(naming) <= NAMES_A_TASK, {m: t for m, t in naming.items() if m not in NAMES_A_TASK}
-    assert set(naming) >= NAMES_A_TASK, f"no longer naming a task, drop from NAMES_A_TASK: {NAMES_A_TASK - set(naming)}"
+    assert not naming, naming
+    assert set(TASKS.values()) <= set(TASK_PACKAGES)
 
 
 def test_layer_check_catches_an_upward_import(tmp_path):
@@ -144,12 +139,12 @@ def test_a_static_checker_resolves_every_import_and_catches_a_broken_one(tmp_pat
             shutil.copytree(src, copy / name, symlinks=True, ignore=shutil.ignore_patterns("__pycache__"))
         else:
             shutil.copy(src, copy / name)
-    with open(copy / "selector" / "tabular.py", "a") as f:
+    with open(copy / "selector" / "core.py", "a") as f:
         f.write("from policy_composer.selector.no_such_module import x\n")
     with open(copy / "tasks" / "gear_assembly" / "spec.py", "a") as f:
         f.write("from policy_composer.policies.registry import no_such_name\n")
     found = _unresolved_imports(copy)
-    planted = [m for m in found if (m.startswith("selector/tabular.py") and "no_such_module" in m)
+    planted = [m for m in found if (m.startswith("selector/core.py") and "no_such_module" in m)
                or (m.startswith("tasks/gear_assembly/spec.py") and "no_such_name" in m)]
     assert len(planted) == 2, found
     assert [m for m in found if m not in planted] == []

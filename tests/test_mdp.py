@@ -8,10 +8,10 @@ import torch
 
 from policy_composer.app.mdp import MDPConfig, expected_activations, make_selector, run_mdp
 from policy_composer.policies.base import InitiationError
-from policy_composer.policies.random_walk import RANDOM_WALK_OPTIONS, random_walk_controllers
 from policy_composer.selector.core import Selector
-from policy_composer.selector.tabular import TabularDynamics, model_states
-from policy_composer.tasks.random_walk import RIGHT, RandomWalkEnv
+from policy_composer.tasks.random_walk.controllers import RANDOM_WALK_OPTIONS, random_walk_controllers
+from policy_composer.tasks.random_walk.env import RIGHT, RandomWalkEnv
+from policy_composer.tasks.random_walk.models import TabularDynamics, model_states
 
 
 def test_env_and_controllers():

@@ -25,12 +25,18 @@ from policy_composer.app.record import record_recipe
 from policy_composer.data import journal
 from policy_composer.data.catalog import HubUnreachable, card_fields, drop_controller, push_dataset, summarize
 from policy_composer.data.features import LEROBOT_VERSION, DatasetError, open_dataset
-from policy_composer.data.recipes import ExpertSettings, RecipeError, available_recipes, load_recipe
+from policy_composer.data.recipes import RecipeError, available_recipes, load_recipe
 from policy_composer.data.recorder import LeRobotRecorder
 from policy_composer.learning.checkpoint import CheckpointError
 from policy_composer.policies.library import LeRobotSource, LibraryError, LibrarySources
 from policy_composer.tasks.gear_assembly.expert import ExpertConfig, GearAssemblyExpert
-from policy_composer.tasks.gear_assembly.spec import ACTION_NAMES, CAMERA_NAMES, STATE_NAMES, EnvSettings
+from policy_composer.tasks.gear_assembly.spec import (
+    ACTION_NAMES,
+    CAMERA_NAMES,
+    STATE_NAMES,
+    EnvSettings,
+    ExpertSettings,
+)
 
 RES = 64
 BIN = Path(sys.executable).parent
@@ -161,7 +167,7 @@ def test_the_dataset_card_says_what_the_dataset_holds(insertion_demos, tmp_path)
                      "**Task.** Insert the gear held by the left gripper onto the peg held by the right arm.",
                      "2 episodes", "the task done in 100% of the episodes",
                      "`observation.images.left_forearm` (64x64x3)",
-                     "- `stage`: how far the task is at this frame: 0 pick, 1 move, 2 insert, 3 done",
+                     "- `stage`: how far the task is at this frame (0 pick, 1 move, 2 insert, 3 done)",
                      f"policy-composer {version('policy-composer')}", '"codebase_version": "v3.0"',
                      "visualize_dataset?path=me/gears"):
         assert expected in card, expected
@@ -219,7 +225,7 @@ def test_bad_input_is_named(insertion_demos, tmp_path):
                       settings=EnvSettings(resolution=32), sources=missing)
     with pytest.raises(FileNotFoundError, match="no DMP library in .* train dmp"):  # the library's first missing
         record_recipe(rollouts, tmp_path / "ro3", settings=EnvSettings(resolution=32), sources=missing)
-    with pytest.raises(RecipeError, match="non-empty subset"):
+    with pytest.raises(RecipeError, match="must be a subset of GearAssembly-v1's"):
         replace(rollouts, cameras=("wrist",))
     with pytest.raises(RecipeError, match="goal must be one of"):
         replace(rollouts, goal="gear_seated")
@@ -227,8 +233,10 @@ def test_bad_input_is_named(insertion_demos, tmp_path):
         replace(rollouts, record_phases=("insert", "wave"))
     with pytest.raises(RecipeError, match="the dagger driver runs one controller"):
         replace(load_recipe("gear-insertion-dagger"), controllers=("cnn_insert", "mp_insert"))
-    with pytest.raises(RecipeError, match="labels must be one of"):
+    with pytest.raises(ValueError, match="labels must be one of"):
         ExpertSettings(labels="hand")
+    with pytest.raises(RecipeError, match="no task 'stack-gears'"):
+        replace(rollouts, task_name="stack-gears")
 
 
 def test_controller_rollouts_name_their_controller(controller_rollouts):

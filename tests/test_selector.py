@@ -428,15 +428,16 @@ def test_each_predicate_is_judged_on_held_out_episodes(world, controller_rollout
         stacked,
     )
     from policy_composer.tasks.gear_assembly.spec import PREDICATES
+    from policy_composer.tasks.gear_assembly.task import TASK
 
-    models = load_predicates(world[0])
+    models = load_predicates(world[0], TASK)
     assert set(models) == set(PREDICATES)
     frames = [load_frames(d, PREDICATE_CONFIG.cameras, SIZE, progress=False)
               for d in (controller_rollouts, full_task_demos)]
     test = torch.cat([held_out(f["episode_index"]) for f in frames])
     images = stacked({k: torch.cat([f[k] for f in frames]) for k in frames[0] if k.startswith("observation.images")},
                      PREDICATE_CONFIG.cameras)
-    state = proprioception(torch.cat([f["observation.state"] for f in frames]))
+    state = proprioception(torch.cat([f["observation.state"] for f in frames]), TASK)
     labels = torch.cat([f["predicates"] for f in frames])
     assert 0 < int(test.sum()) < len(test)
     for column, (name, model) in enumerate(models.items()):

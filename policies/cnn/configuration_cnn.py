@@ -6,13 +6,13 @@ from dataclasses import dataclass
 
 from policy_composer.learning.config import BACKBONES, TrainingConfig, option
 from policy_composer.policies.registry import register_kind
-from policy_composer.tasks.gear_assembly.spec import CAMERA_NAMES, INSERTION_WINDOWS
+from policy_composer.tasks.registry import get_spec
 
 # What the policy reads of observation.state besides its image, and its size:
 # "gripper": the gripper's width only. With the joints as input, a few dozen demonstrations can be fitted from
 #            the joints alone (each episode's joint path is unique), and the image gets ignored; measured on
 #            the insertion table, see docs/controllers.md.
-# "arm": the left arm's 7 joints and the gripper width (the paper's wording).
+# "arm": the driven arm's 7 joints and the gripper width (the paper's wording).
 PROPRIOCEPTION = {"gripper": slice(7, 8), "arm": slice(0, 8)}
 # What the mixture density head predicts, and its size (the gripper command is the last entry of both):
 # "hand": the next TCP target as a displacement in the hand's own frame (the forearm camera's frame too, so
@@ -22,24 +22,19 @@ PROPRIOCEPTION = {"gripper": slice(7, 8), "arm": slice(0, 8)}
 ACTION_SPACES = {"hand": 4, "joint": 8}
 
 
-# The subtasks a CNN policy is trained for, the recipe of its demonstrations and the task stages (the frames'
-# `stage`) it learns from; None: every frame. The move keeps the carry's last frames at the pre-insertion pose too,
-# so it learns where the carry ends, not only where the pre-insertion pose's tolerance begins.
-DEMONSTRATIONS = {"pick": ("gear-transport-demos", (0,)), "move": ("gear-transport-demos", (1, 2)),
-                  "insert": ("gear-insertion-demos", None)}
-# The recipe of a subtask's corrections: the policy's own rollouts labelled by the scripted expert (DAgger), which it
-# may train on beside its demonstrations.
-CORRECTIONS = {"move": "gear-move-dagger", "insert": "gear-insertion-dagger"}
+# The subtasks a CNN policy may be trained for, where its task has them and names the recipe of their
+# demonstrations (the task spec's `demonstrations`, and of their DAgger corrections, `corrections`).
+SUBTASKS = ("pick", "move", "insert")
 
 
-@register_kind("cnn", label="CNN", subtasks=tuple(DEMONSTRATIONS), trained=True)
+@register_kind("cnn", label="CNN", subtasks=SUBTASKS, trained=True)
 @dataclass
 class CNNPolicyConfig(TrainingConfig):
-    subtask: str = option("insert", "the subtask the policy is trained for", tuple(DEMONSTRATIONS))
-    camera: str = option("left_forearm", "the camera the policy sees", CAMERA_NAMES)
+    subtask: str = option("insert", "the subtask the policy is trained for", SUBTASKS)
+    camera: str = option("", "the camera the policy sees (default: the task's policy camera)", camera=True)
     view: str = option("auto", "what the policy sees of its camera: the whole image, or the window where the held "
-                       "gear meets the peg (the spec's INSERTION_WINDOWS); auto: the window for the insertion where "
-                       "the camera has one", ("auto", "whole", "insertion"))
+                       "part meets its counterpart (the task's insertion windows); auto: the window for the insertion "
+                       "where the camera has one", ("auto", "whole", "insertion"))
     image_size: int = option(64, "images are resized to this square before the encoder", minimum=16)
     backbone: str = option("spatial", "image encoder (see learning.layers.image_encoder)", BACKBONES)
     proprioception: str = option("gripper", "what the policy reads besides its image: the gripper width, or the "
@@ -68,19 +63,26 @@ class CNNPolicyConfig(TrainingConfig):
                                          "0 otherwise)", minimum=0.0)
 
     def __post_init__(self):
+        super().__post_init__()
+        spec = get_spec(self.task)
+        self.camera = self.camera or spec.policy_camera
+        if self.camera not in spec.cameras:
+            raise ValueError(f"CNNPolicyConfig.camera must be one of {spec.env_id}'s {', '.join(spec.cameras)}, not "
+                             f"{self.camera!r}")
+        windows = spec.insertion_windows
         if self.view == "auto":
-            self.view = "insertion" if self.subtask == "insert" and self.camera in INSERTION_WINDOWS else "whole"
+            self.view = "insertion" if self.subtask == "insert" and self.camera in windows else "whole"
         if self.offset_weight is None:
             self.offset_weight = 1.0 if self.subtask == "insert" else 0.0
-        super().__post_init__()
-        if self.view == "insertion" and self.camera not in INSERTION_WINDOWS:
-            raise ValueError(f"CNNPolicyConfig.view 'insertion' has a window for {', '.join(INSERTION_WINDOWS)} only, "
-                             f"not the {self.camera} camera; choose view 'whole' or one of those cameras")
+        if self.view == "insertion" and self.camera not in windows:
+            raise ValueError(f"CNNPolicyConfig.view 'insertion' has a window for {', '.join(windows) or 'no camera'} "
+                             f"of {spec.env_id} only, not the {self.camera} camera; choose view 'whole'"
+                             + (" or one of those cameras" if windows else ""))
 
     @property
     def window(self) -> tuple[float, float, float] | None:
         """The part of the camera image the policy sees (see to_model_image); None: all of it."""
-        return INSERTION_WINDOWS[self.camera] if self.view == "insertion" else None
+        return get_spec(self.task).insertion_windows[self.camera] if self.view == "insertion" else None
 
     @property
     def state_dim(self) -> int:

@@ -29,38 +29,39 @@ from policy_composer.learning.checkpoint import (
 )
 from policy_composer.learning.snapshot import Snapshots
 from policy_composer.learning.training import adam, fit_epochs
-from policy_composer.policies.cnn.configuration_cnn import CORRECTIONS, DEMONSTRATIONS, PROPRIOCEPTION, CNNPolicyConfig
+from policy_composer.policies.cnn.configuration_cnn import PROPRIOCEPTION, SUBTASKS, CNNPolicyConfig
 from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
 from policy_composer.tasks.panda import PandaForwardKinematics
+from policy_composer.tasks.registry import get_spec
 
 
-def policy_state(state16: torch.Tensor, config: CNNPolicyConfig) -> torch.Tensor:
+def policy_state(state: torch.Tensor, config: CNNPolicyConfig) -> torch.Tensor:
     """What the policy reads of observation.state (see PROPRIOCEPTION)."""
-    return state16[..., PROPRIOCEPTION[config.proprioception]]
+    return state[..., PROPRIOCEPTION[config.proprioception]]
 
 
-def previous_commands(state16: torch.Tensor, action16: torch.Tensor, episode_index: torch.Tensor) -> torch.Tensor:
+def previous_commands(state: torch.Tensor, action: torch.Tensor, episode_index: torch.Tensor) -> torch.Tensor:
     """The command before each frame's: the previous frame's action, or at an episode's first frame the
     measured state (where the arm is when the controller takes over)."""
-    prev = action16.roll(1, dims=0).clone()
+    prev = action.roll(1, dims=0).clone()
     first = torch.ones(len(episode_index), dtype=torch.bool)
     first[1:] = episode_index[1:] != episode_index[:-1]
-    prev[first] = state16[first]
+    prev[first] = state[first]
     return prev
 
 
-def action_target(state16: torch.Tensor, action16: torch.Tensor, prev16: torch.Tensor,
+def action_target(state: torch.Tensor, action: torch.Tensor, previous: torch.Tensor,
                   action_space: str) -> torch.Tensor:
     """What the policy predicts from a recorded frame, in `action_space` (see ACTION_SPACES), with the gripper
     command last: the change from the previous command, not from the measured joints, since the gap between a
     command and where the arm is depends on the arm's velocity, which one image does not show."""
-    gripper = action16[..., 7:8]
+    gripper = action[..., 7:8]
     if action_space == "joint":
-        return torch.cat([action16[..., :7] - prev16[..., :7], gripper], dim=-1)
+        return torch.cat([action[..., :7] - previous[..., :7], gripper], dim=-1)
     fk = PandaForwardKinematics()
-    _, R_now = fk.tcp(state16[..., :7].double().numpy())
-    p_prev, _ = fk.tcp(prev16[..., :7].double().numpy())
-    p_target, _ = fk.tcp(action16[..., :7].double().numpy())
+    _, R_now = fk.tcp(state[..., :7].double().numpy())
+    p_prev, _ = fk.tcp(previous[..., :7].double().numpy())
+    p_target, _ = fk.tcp(action[..., :7].double().numpy())
     in_hand = np.einsum("nji,nj->ni", R_now, p_target - p_prev)  # R^T (p_target - p_prev)
     return torch.cat([torch.as_tensor(in_hand, dtype=torch.float32), gripper], dim=-1)
 
@@ -68,16 +69,20 @@ def action_target(state16: torch.Tensor, action16: torch.Tensor, prev16: torch.T
 def load_demonstrations(root: str | Path | Sequence[str | Path], config: CNNPolicyConfig,
                         episodes: list[int] | None = None, progress: bool = True) -> dict[str, torch.Tensor]:
     """A dataset (or several, one after the other) in memory as the policy trains on it: the frames of the policy's
-    subtask (see DEMONSTRATIONS), as images (N, 3, S, S) uint8, arm state (N, state_dim) and action target
-    (N, action_dim)."""
+    subtask (see the task spec's `demonstrations`), as images (N, 3, S, S) uint8, arm state (N, state_dim) and
+    action target (N, action_dim)."""
     if not isinstance(root, (str, Path)):
         check_distinct(root)
         parts = [load_demonstrations(r, config, episodes, progress) for r in root]
         return {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
-    recipe, stages = DEMONSTRATIONS[config.subtask]
-    accepted = tuple(filter(None, (recipe, CORRECTIONS.get(config.subtask))))
+    spec = get_spec(config.task)
+    if config.subtask not in spec.demonstrations:
+        raise ValueError(f"{spec.env_id} has no demonstrations of a {config.subtask} for a CNN policy (it has "
+                         f"{', '.join(spec.demonstrations)})")
+    recipe, stages = spec.demonstrations[config.subtask]
+    accepted = tuple(filter(None, (recipe, spec.corrections.get(config.subtask))))
     check_recipe(root, accepted, f"the CNN {config.subtask} policy")
-    required = {"observation.state": (16,), "action": (16,), "stage": (1,)}
+    required = {"observation.state": (len(spec.state_names),), "action": (len(spec.action_names),), "stage": (1,)}
     if config.offset_weight:
         required["gear_offset"] = (3,)
     frames = load_frames(root, (config.camera,), config.image_size, episodes, required=required, progress=progress,
@@ -162,10 +167,10 @@ def load_cnn_library(path: str | Path) -> dict[str, CNNPolicy]:
     if (path / "config.json").is_file():
         policy = load_cnn_policy(path)
         return {policy.config.subtask: policy}
-    policies = {s: load_cnn_policy(path / s, subtask=s) for s in DEMONSTRATIONS if (path / s / "config.json").is_file()}
+    policies = {s: load_cnn_policy(path / s, subtask=s) for s in SUBTASKS if (path / s / "config.json").is_file()}
     if not policies:
         raise CheckpointError(f"no CNN policy in {path} (expected a checkpoint, or one in a subfolder per subtask: "
-                              f"{', '.join(DEMONSTRATIONS)}); train them with `policy-composer train policy --subtask "
+                              f"{', '.join(SUBTASKS)}); train them with `policy-composer train policy --subtask "
                               "SUBTASK`")
     return policies
 

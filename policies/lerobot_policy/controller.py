@@ -91,20 +91,20 @@ class LeRobotPolicyController(LearnedController):
                 camera = key.removeprefix("observation.images.")
                 check_camera(self.env, camera, f"the {cfg.type} policy at {path}")
                 self.images[key] = (camera, int(feature.shape[-1]))
-            elif key == "observation.state" and tuple(feature.shape) != (len(task.state_names),):
+            elif key == "observation.state" and tuple(feature.shape) != (len(task.spec.state_names),):
                 raise CheckpointError(f"the policy at {path} takes a state of shape {tuple(feature.shape)}, "
-                                      f"{task.env_id} gives ({len(task.state_names)},)")
-        if tuple(cfg.output_features["action"].shape) != (len(task.action_names),):
+                                      f"{task.spec.env_id} gives ({len(task.spec.state_names)},)")
+        if tuple(cfg.output_features["action"].shape) != (len(task.spec.action_names),):
             raise CheckpointError(f"the policy at {path} outputs actions of shape "
                                   f"{tuple(cfg.output_features['action'].shape)}, "
-                                  f"{task.env_id} takes ({len(task.action_names)},)")
+                                  f"{task.spec.env_id} takes ({len(task.spec.action_names)},)")
         with damaged_files(path / "model.safetensors", "does not hold the weights of this policy"):
             self.policy = get_policy_class(cfg.type).from_pretrained(path, config=cfg).eval()
         check_finite(path / "model.safetensors", self.policy.state_dict(), "train it again with lerobot-train")
         with damaged_files(path, "does not hold readable processors (policy_preprocessor.json and its files)"):
             self.preprocess, self.postprocess = make_pre_post_processors(
                 cfg, pretrained_path=str(path), preprocessor_overrides={"device_processor": {"device": "cpu"}})
-        self.instruction = instruction or task.instruction
+        self.instruction = instruction or task.spec.instruction
         self.obs_keys = tuple(f"sensor_data.{c}.rgb" for c, _ in self.images.values()) + ("extra.state",)
 
     def reset(self, obs, seed=None):

@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 from dataclasses import MISSING, fields
 
+from policy_composer.tasks.registry import known_cameras
+
 _TYPES = {"int": int, "float": float, "str": str}
 
 
@@ -69,9 +71,10 @@ def add_config_options(parser: argparse.ArgumentParser, config_cls: type, flags:
         default = f.default_factory() if f.default is MISSING else f.default
         help_text = f.metadata.get("help") or name.replace("_", " ")
         kind, minimum = _TYPES[str(f.type).split(" |")[0]], f.metadata.get("minimum")
+        choices = f.metadata.get("choices") or (known_cameras() if f.metadata.get("camera") else None)
         parser.add_argument(f"--{flag}", dest=f"{config_cls.__name__}.{name}", default=default,
                             type=kind if minimum is None else at_least(minimum, kind),
-                            choices=f.metadata.get("choices"), help=f"{help_text} (default: {default})")
+                            choices=choices, help=f"{help_text} (default: {default!r})")
 
 
 def config_from(args: argparse.Namespace, config_cls: type):

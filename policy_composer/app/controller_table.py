@@ -125,7 +125,7 @@ class TrialRunner:
     def __init__(self, rows: dict[str, tuple[str, ...]], sources, resolution: int = 128, clearance_mm: float = 2.0,
                  predicates: str | Path | None = None):
         self.rows, self.sources, self.resolution, self.clearance_mm = rows, sources, resolution, clearance_mm
-        self.senses = LearnedSenses(load_predicates(predicates)) if predicates is not None else None
+        self.senses = LearnedSenses(load_predicates(predicates, TASK)) if predicates is not None else None
         self.built: dict[str, tuple] = {}
 
     def __call__(self, item: tuple[str, str, int]) -> Trial:

@@ -20,10 +20,10 @@ from pathlib import Path
 from policy_composer.app.pipeline import Stage, StageRecord, run_stages
 from policy_composer.data import interrupt
 from policy_composer.data.lock import one_writer
-from policy_composer.policies.cnn.configuration_cnn import CORRECTIONS, DEMONSTRATIONS, CNNPolicyConfig
+from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 from policy_composer.selector.configuration import ComposeConfig
 from policy_composer.tasks.gear_assembly.spec import CAMERA_NAMES as CAMERAS
-from policy_composer.tasks.gear_assembly.spec import SUBTASK_COLUMNS
+from policy_composer.tasks.gear_assembly.spec import SPEC, SUBTASK_COLUMNS
 
 # The controllers that `--insertion straight` changes: the paper's open-loop insertions.
 STRAIGHT = ("mp_insert", "dmp_insert")
@@ -63,7 +63,7 @@ class Profile:
     samples: int = 16
     cnn_max_steps: int = CNNPolicyConfig.max_steps  # a CNN controller's step limit
     compose_max_steps: int = ComposeConfig.max_steps  # control steps of a composed episode
-    dagger_subtasks: tuple[str, ...] = ("insert",)  # the CNN policies the DAgger rounds train (see CORRECTIONS)
+    dagger_subtasks: tuple[str, ...] = ("insert",)  # the CNN policies the DAgger rounds train (SPEC.corrections)
     bfloat16_subtasks: tuple[str, ...] = ()  # the CNN policies whose convolutions train in bfloat16 (--precision)
     insert_trials: int | None = None  # Table I's insert column, where the paper's comparison lies (None: table_trials)
     insert_epochs: int | None = None  # the CNN insertion's behaviour cloning, if not cnn_epochs
@@ -139,7 +139,7 @@ def stages(p: Profile, workers: int = 1) -> list[Stage]:
                               num_mixtures=p.mixtures, image_size=p.image_size, max_steps=p.cnn_max_steps,
                               precision="bfloat16" if s in p.bfloat16_subtasks else "float32")
            for s in ("pick", "move", "insert")}
-    dagger = {s: (load_recipe(CORRECTIONS[s]), replace(cnn[s], epochs=p.dagger_epochs)) for s in p.dagger_subtasks}
+    dagger = {s: (load_recipe(SPEC.corrections[s]), replace(cnn[s], epochs=p.dagger_epochs)) for s in p.dagger_subtasks}
     vae = VAEConfig(epochs=p.vae_epochs, image_size=p.image_size)
     dynamics = DynamicsConfig(epochs=p.dynamics_epochs)
     goal = GoalScoreConfig(epochs=p.goal_epochs, num_mixtures=p.mixtures, image_size=p.image_size)
@@ -272,7 +272,7 @@ def _dagger_rounds(p: Profile, subtasks: dict[str, tuple], workers: int) -> list
                                 resumable=True, verify=_verify_dataset))
         trained = "cnn" if k == p.dagger_rounds else f"dagger-cnn-{k}"
         configs = {s: config for s, (_, config, _) in subtasks.items()}
-        datasets = {s: (DEMONSTRATIONS[s][0].removeprefix("gear-"), *rollouts[s]) for s in subtasks}
+        datasets = {s: (SPEC.demonstrations[s][0].removeprefix("gear-"), *rollouts[s]) for s in subtasks}
         stages.append(Stage(trained, f"train the CNN {', '.join(subtasks)} policies on their demonstrations and {k} "
                             f"round(s) of the expert's corrections ({p.dagger_epochs} epochs)",
                             {s: asdict(c) for s, c in configs.items()},
@@ -336,7 +336,7 @@ def _fit_dmp(out: Path, episodes: int) -> dict:
 
 def _train_cnn(out: Path, inputs: dict[str, Path], configs: dict) -> dict:
     """One CNN policy per subtask, in the library's CNN model folder (out/cnn/SUBTASK)."""
-    demos = {s: [inputs[DEMONSTRATIONS[s][0].removeprefix("gear-")] / "dataset"] for s in configs}  # recipes' stages
+    demos = {s: [inputs[SPEC.demonstrations[s][0].removeprefix("gear-")] / "dataset"] for s in configs}
     return _train_policies(out, configs, demos, {s: f"CNN {s} policy" for s in configs})
 
 

@@ -15,10 +15,10 @@ import numpy as np
 import torch
 
 from policy_composer.data import atomic
-from policy_composer.policies.random_walk import RANDOM_WALK_OPTIONS, random_walk_controllers
 from policy_composer.selector.core import Selector
-from policy_composer.selector.tabular import TabularDynamics, TabularGoalScore, model_states
-from policy_composer.tasks.random_walk import RandomWalkEnv
+from policy_composer.tasks.random_walk.controllers import RANDOM_WALK_OPTIONS, random_walk_controllers
+from policy_composer.tasks.random_walk.env import RandomWalkEnv
+from policy_composer.tasks.random_walk.models import TabularDynamics, TabularGoalScore, model_states
 
 PAPER = {"planning_steps_19": 4, "heatmap_min": 8, "heatmap_max": 72, "optimal_100": 12, "low_noise_below": 20}
 
@@ -26,7 +26,7 @@ PAPER = {"planning_steps_19": 4, "heatmap_min": 8, "heatmap_max": 72, "optimal_1
 @dataclass(frozen=True)
 class MDPConfig:
     num_states: int = 19
-    start: int | None = None  # None: the middle state (see policy_composer.tasks.random_walk)
+    start: int | None = None  # None: the middle state (see policy_composer.tasks.random_walk.env)
     p_dyn: float = 0.2  # probability that a dynamics prediction is a wrong state
     p_goal: float = 0.2  # probability that the goal score reports a wrong state's value
     # "step": p_dyn is per application of a dynamics model, so an n-step look-ahead errs with 1-(1-p)^n;

@@ -83,8 +83,9 @@ def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None,
         if not previous:  # the recipe's cameras, and any others its controllers read
             settings = replace(settings, cameras=tuple(dict.fromkeys((*recipe.cameras, *needed))))
         writer = LeRobotWriter(root, recipe.task, CONTROL_FREQ, settings.resolution, settings.cameras, resume=resume,
-                               metadata={"recipe": recipe.name, "env": asdict(settings), "first_seed": first_seed,
-                                         "controller_models": models,
+                               task_name=recipe.task_name,
+                               metadata={"recipe": recipe.name, "task_name": recipe.task_name, "env": asdict(settings),
+                                         "first_seed": first_seed, "controller_models": models,
                                          "expert": asdict(recipe.expert), "train_episodes": recipe.train_episodes})
         recorded = Counter(e.get("controller_name") for e in writer.episodes)  # per controller, when resuming
         units = controllers if recipe.driver == "controllers" else (None,)

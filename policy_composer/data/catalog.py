@@ -9,7 +9,8 @@ from pathlib import Path
 from policy_composer.data import journal
 from policy_composer.data.features import DatasetError, read_info, read_sidecar, verify_dataset
 from policy_composer.data.lock import one_writer
-from policy_composer.tasks.gear_assembly.spec import ENV_ID, STATE_NAMES
+from policy_composer.tasks.base import TaskSpec
+from policy_composer.tasks.registry import DEFAULT_TASK, TASKS, get_spec
 
 REPO_ID = re.compile(r"^[A-Za-z0-9][\w.-]*/[A-Za-z0-9][\w.-]*$")
 
@@ -37,10 +38,12 @@ def provenance(info: dict, sidecar: dict) -> str | None:
     """Why the project's own facts of a dataset (recipe, controller names, per-episode seeds) are missing or do not
     fit it; None when they do. LeRobot's edit tools (lerobot-edit-dataset) write new datasets without them."""
     if not sidecar:
-        if info["features"].get("observation.state", {}).get("names") == list(STATE_NAMES):
-            return (f"meta/policy_composer.json is missing: this {ENV_ID} recording was edited by a tool that does "
-                    "not carry it (such as lerobot-edit-dataset), so its recipe and the names of its controllers are "
-                    "unknown; copy the file from the dataset it came from to restore them")
+        names = info["features"].get("observation.state", {}).get("names")
+        spec = next((get_spec(t) for t in TASKS if list(get_spec(t).state_names) == names), None)
+        if spec is not None:
+            return (f"meta/policy_composer.json is missing: this {spec.env_id} recording was edited by a tool that "
+                    "does not carry it (such as lerobot-edit-dataset), so its recipe and the names of its controllers "
+                    "are unknown; copy the file from the dataset it came from to restore them")
         return "not recorded by policy-composer (no meta/policy_composer.json): only LeRobot's metadata is known"
     listed = len(sidecar.get("episodes", []))
     if listed != info["total_episodes"]:
@@ -131,14 +134,14 @@ def _check_hub_reachable(root: Path) -> None:
                              f"{intact}") from None
 
 
-CARD_TAGS = ["policy-composer", "maniskill", "gear-assembly"]
+CARD_TAGS = ["policy-composer", "maniskill"]  # and the task's name
 # What the labels beside LeRobot's own features mean (the card says it to people who never read this project).
 LABELS = {
     "progress": "frame index / (T - 1) in a successful episode, -1 in a failed one (the goal score's target)",
-    "stage": "how far the task is at this frame: 0 pick, 1 move, 2 insert, 3 done",
+    "stage": "how far the task is at this frame",
     "controller": "which controller produced the frame's action: an index into `controllers` of "
                   "meta/policy_composer.json",
-    "next.success": "the task (the gear seated on the peg) is done after this frame's action",
+    "next.success": "the task is done after this frame's action",
     "next.done": "the episode's last frame",
 }
 PAPER = ("Composing Diverse Policies for Temporally Extended Tasks (Angelov, Hristov, Burke, Ramamoorthy, "
@@ -167,13 +170,13 @@ def card_fields(root: str | Path) -> dict[str, str]:
     except RecipeError:  # a recipe of the user's own, not shipped with this version
         recipe = None
     env = sidecar.get("env", {})
+    spec = dataset_spec(root)
     rate = summary["success_rate"]
     kept = [e["success"] for e in sidecar.get("episodes", [])] if not summary["provenance"] else []
     goal = (f" Each episode's goal, `{recipe.goal}`, was reached in {100 * sum(kept) / len(kept):.0f}% of them."
             if recipe is not None and recipe.goal != "success" and kept else "")
-    lines = [f"Recorded with policy-composer {version('policy-composer')} in the ManiSkill task {ENV_ID} "
-             "(two Panda arms: the left one picks a gear up and puts it onto a peg the right one holds), for a "
-             f"reproduction of *{PAPER}*.", ""]
+    lines = [f"Recorded with policy-composer {version('policy-composer')} in the ManiSkill task {spec.env_id} "
+             f"({spec.card['scene']}), for a reproduction of *{PAPER}*.", ""]
     if summary["provenance"]:
         lines += [f"**Edited.** {summary['provenance']}.", ""]
     if recipe is not None:
@@ -184,9 +187,9 @@ def card_fields(root: str | Path) -> dict[str, str]:
               "**Cameras.** " + ", ".join(f"`observation.images.{c}` ({'x'.join(map(str, s))})"
                                          for c, s in summary["cameras"].items())
               + (f"; clearance between peg and hole {env['clearance_mm']} mm." if "clearance_mm" in env else "."), "",
-              "**State and action.** `observation.state`: both arms' 7 joint angles and gripper widths; `action`: "
-              "both arms' 7 joint targets (rad) and gripper commands (-1 closed, 1 open).", "",
-              "**Labels.**", *[f"- `{k}`: {v}" for k, v in LABELS.items() if k in summary["features"]]]
+              f"**State and action.** {spec.card['state_action']}.", "",
+              "**Labels.**", *[f"- `{k}`: {v}{_for_task(k, spec)}" for k, v in LABELS.items()
+                               if k in summary["features"]]]
     if summary["controllers"]:
         lines += ["", f"**Controllers.** {', '.join(summary['controllers'])}."]
     return {"dataset_description": "\n".join(lines), "paper": PAPER, "citation_bibtex": CITATION,
@@ -217,7 +220,18 @@ def dataset_card(root: str | Path, repo_id: str | None = None):
 
 def card_tags(root: str | Path) -> list[str]:
     """The project's tags on a card of its own recordings only (LeRobot adds its own tag to every card)."""
-    return CARD_TAGS if read_sidecar(root) else []
+    return [*CARD_TAGS, dataset_spec(root).name] if read_sidecar(root) else []
+
+
+def dataset_spec(root: str | Path) -> TaskSpec:
+    """The task a recording of the project's was made in (its metadata says; before it did, the default task)."""
+    return get_spec(read_sidecar(root).get("task_name", DEFAULT_TASK))
+
+
+def _for_task(label: str, spec: TaskSpec) -> str:
+    """What a label's values mean in the task, where it says (the stages, the success)."""
+    words = {"stage": spec.card.get("stage"), "next.success": spec.card.get("success")}.get(label)
+    return f" ({words})" if words else ""
 
 
 def view_dataset(root: str | Path, episode: int, out: str | Path | None = None) -> Path | None:

@@ -1,4 +1,4 @@
-"""What a GearAssembly-v1 LeRobot dataset holds, and the checks a consumer runs before it trusts one.
+"""What a task's LeRobot dataset holds, and the checks a consumer runs before it trusts one.
 
 Every consumer (the CNN policy, the VAE, the dynamics models, the goal scorers) opens its dataset through
 `open_dataset`, so a wrong path, a missing camera or a feature of the wrong shape fails at once with an
@@ -11,10 +11,10 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from policy_composer.tasks.gear_assembly.spec import ACTION_NAMES, CAMERA_NAMES, PREDICATES, STATE_NAMES
-
 if TYPE_CHECKING:  # pyarrow is imported where a dataset is read
     import pyarrow as pa
+
+    from policy_composer.tasks.base import TaskSpec
 
 LEROBOT_VERSION = "0.6.1"  # the release pyproject.toml pins; its datasets are of FORMAT_VERSION
 FORMAT_VERSION = "v3.0"
@@ -30,26 +30,28 @@ def image_key(camera: str) -> str:
 FEATURES_REVISION = 3
 
 
-def dataset_features(cameras: tuple[str, ...] = CAMERA_NAMES, resolution: int = 128) -> dict[str, dict]:
-    """LeRobot feature spec of a recording: camera videos, joint state, action and the per-frame labels."""
-    unknown = set(cameras) - set(CAMERA_NAMES)
+def dataset_features(spec: TaskSpec, cameras: tuple[str, ...] | None = None, resolution: int = 128) -> dict[str, dict]:
+    """LeRobot feature spec of a recording of the task: camera videos (default: all of the task's), joint state,
+    action and the per-frame labels."""
+    cameras = spec.cameras if cameras is None else cameras
+    unknown = set(cameras) - set(spec.cameras)
     if unknown:
-        raise ValueError(f"unknown camera(s) {sorted(unknown)}; GearAssembly-v1 has {list(CAMERA_NAMES)}")
+        raise ValueError(f"unknown camera(s) {sorted(unknown)}; {spec.env_id} has {list(spec.cameras)}")
     features = {
         image_key(c): {"dtype": "video", "shape": (resolution, resolution, 3), "names": ["height", "width", "channels"]}
         for c in cameras
     }
     features.update({
-        "observation.state": {"dtype": "float32", "shape": (len(STATE_NAMES),), "names": list(STATE_NAMES)},
-        "action": {"dtype": "float32", "shape": (len(ACTION_NAMES),), "names": list(ACTION_NAMES)},
+        "observation.state": {"dtype": "float32", "shape": (len(spec.state_names),), "names": list(spec.state_names)},
+        "action": {"dtype": "float32", "shape": (len(spec.action_names),), "names": list(spec.action_names)},
         # frame_index / (T - 1) in a successful episode, -1 in a failed one: the goal score's target.
         "progress": {"dtype": "float32", "shape": (1,), "names": None},
-        # GearAssemblyEnv.evaluate()["stage"] of the observed state: 0 pick, 1 move, 2 insert, 3 done.
+        # The task's labels of the observed state (TaskDescription.labels), privileged, never a policy's input: the
+        # stage reached (on the gear: 0 pick, 1 move, 2 insert, 3 done), the held part's offset in the hand (m; the
+        # column keeps the gear's name), and each predicate, 0 or 1 (the predicate classifiers' labels).
         "stage": {"dtype": "int64", "shape": (1,), "names": None},
-        # GearAssemblyEnv.gear_offset_in_hand() of the observed state (m): a privileged label, never a policy's input.
         "gear_offset": {"dtype": "float32", "shape": (3,), "names": ["x", "y", "z"]},
-        # GearAssemblyEnv.predicates() of the observed state, 0 or 1 each: the predicate classifiers' labels.
-        "predicates": {"dtype": "float32", "shape": (len(PREDICATES),), "names": list(PREDICATES)},
+        "predicates": {"dtype": "float32", "shape": (len(spec.predicates),), "names": list(spec.predicates)},
         # Index into the sidecar's "controllers" list: which controller produced this frame's action.
         "controller": {"dtype": "int64", "shape": (1,), "names": None},
         "next.success": {"dtype": "bool", "shape": (1,), "names": None},

@@ -6,21 +6,15 @@ import re
 import tomllib
 import types
 import typing
-from dataclasses import MISSING, dataclass, field, fields
+from dataclasses import MISSING, dataclass, fields
 from pathlib import Path
 
 from policy_composer.data.features import read_info, read_sidecar
-from policy_composer.tasks.gear_assembly.spec import (
-    CAMERA_NAMES,
-    EXPERT_PHASES,
-    GOAL_FLAGS,
-    GRASP_OFFSET_MM,
-    START_STATES,
-)
+from policy_composer.tasks.base import TaskSpec
+from policy_composer.tasks.registry import DEFAULT_TASK, TaskError, get_spec
 
 RECIPE_DIR = Path(__file__).resolve().parents[2] / "datasets" / "recipes"
 DRIVERS = ("expert", "controllers", "dagger")
-LABELS = ("command", "arm")
 
 
 class RecipeError(ValueError):
@@ -39,40 +33,6 @@ def check_plain_name(name: object, what: str) -> None:
 
 
 @dataclass(frozen=True)
-class ExpertSettings:
-    grasp_offset_mm: float = 12.0
-    teleop: bool = False
-    arrival_error_mm: float = 4.0  # teleop: how much further off its rough carry may leave the gear
-    # Pre-insertion starts: the gear is off the peg's axis by up to this (a uniform draw in the disc), whatever the
-    # grasp, as after a carry that watched the gear; 0: the hand is off by a rough carry's error and the gear by
-    # its grasp offset besides, so where the gear sits in the fingers tells which way the peg is.
-    gear_arrival_mm: float = 0.0
-    noise_mm: float = 0.0  # DART: the executed TCP target's drifting offset (see ExpertConfig.noise)
-    # What a label's command is a step from (see ExpertConfig.from_arm): "command", the expert's own last command;
-    # "arm", the measured hand, for a labeller of states it does not drive (DAgger).
-    labels: str = "command"
-
-    def __post_init__(self):
-        if self.labels not in LABELS:
-            raise RecipeError(f"[expert] labels must be one of {list(LABELS)}, not {self.labels!r}")
-        low, high = GRASP_OFFSET_MM
-        if not low <= self.grasp_offset_mm <= high:
-            raise RecipeError(f"[expert] grasp_offset_mm must be between {low:g} and {high:g} mm, not "
-                              f"{self.grasp_offset_mm!r}")
-        for name in ("arrival_error_mm", "gear_arrival_mm", "noise_mm"):
-            if getattr(self, name) < 0:
-                raise RecipeError(f"[expert] {name} must be at least 0, not {getattr(self, name)!r}")
-
-    def config(self):
-        """The scripted expert's ExpertConfig for these settings (the simulator loads only when it is asked for)."""
-        from policy_composer.tasks.gear_assembly.expert import ExpertConfig
-
-        return ExpertConfig(grasp_offset=self.grasp_offset_mm / 1000.0, teleop=self.teleop,
-                            arrival_error=self.arrival_error_mm / 1000.0, noise=self.noise_mm / 1000.0,
-                            from_arm=self.labels == "arm")
-
-
-@dataclass(frozen=True)
 class Recipe:
     name: str
     description: str
@@ -85,23 +45,34 @@ class Recipe:
     # The flag of GearAssemblyEnv.evaluate() an episode must end with to succeed. The expert's episodes end once it
     # has left the last of `record_phases`, so a recipe of the first subtasks simulates nothing after them.
     goal: str = "success"
-    start: str = "table"  # "expert" driver: where episodes start (GearAssembly-v1's START_STATES)
+    start: str = ""  # "expert" driver: where episodes start (one of the task's start states; "": its first)
     keep: str = "success"  # "success": failed episodes are dropped and another seed is tried; "all"
     train_episodes: int | None = None  # episodes [0, train_episodes) train, the rest are held out
     # "controllers" driver: which to run (empty: every registered controller); "dagger": the one that acts
     controllers: tuple[str, ...] = ()
-    cameras: tuple[str, ...] = CAMERA_NAMES  # cameras to render and record
-    expert: ExpertSettings = field(default_factory=ExpertSettings)
+    cameras: tuple[str, ...] = ()  # cameras to render and record (empty: every camera of the task)
+    task_name: str = DEFAULT_TASK  # the library's task the episodes are recorded in (`--task`)
+    expert: object = None  # the [expert] table, as the task's `expert_settings` (None: its defaults)
+
+    @property
+    def spec(self) -> TaskSpec:
+        return get_spec(self.task_name)
 
     def reset_options(self) -> dict:
-        """The env's reset options for the expert's episodes: where they start, and how the gear sits there."""
-        options = {"start": self.start, "grasp_offset_max": self.expert.grasp_offset_mm / 1000.0}
-        if self.expert.gear_arrival_mm > 0:
-            options["gear_arrival_max"] = self.expert.gear_arrival_mm / 1000.0
-        return options
+        """The env's reset options for the expert's episodes: where they start, and what the task's expert settings
+        say of the scene there."""
+        return {"start": self.start, **self.expert.reset_options()}
 
     def __post_init__(self):
         check_plain_name(self.name, "recipe")
+        try:
+            spec = self.spec
+        except TaskError as e:
+            raise RecipeError(f"recipe {self.name}: {e}") from None
+        if self.expert is None:
+            object.__setattr__(self, "expert", spec.expert_settings())
+        object.__setattr__(self, "start", self.start or spec.start_states[0])
+        object.__setattr__(self, "cameras", self.cameras or spec.cameras)
         if self.episodes < 1:
             raise RecipeError(f"recipe {self.name}: episodes must be at least 1, not {self.episodes}")
         if self.train_episodes is not None and self.train_episodes < 0:
@@ -111,16 +82,16 @@ class Recipe:
         if self.driver == "dagger" and len(self.controllers) != 1:
             raise RecipeError(f"recipe {self.name}: the dagger driver runs one controller (controllers = [\"NAME\"]), "
                               f"not {list(self.controllers)}")
-        if set(self.cameras) - set(CAMERA_NAMES) or not self.cameras:
-            raise RecipeError(f"recipe {self.name}: cameras {list(self.cameras)} must be a non-empty subset of "
-                              f"{list(CAMERA_NAMES)}")
-        if self.start not in START_STATES:
-            raise RecipeError(f"recipe {self.name}: start must be one of {list(START_STATES)}, not {self.start!r}")
-        if set(self.record_phases) - set(EXPERT_PHASES):
+        if set(self.cameras) - set(spec.cameras):
+            raise RecipeError(f"recipe {self.name}: cameras {list(self.cameras)} must be a subset of "
+                              f"{spec.env_id}'s {list(spec.cameras)}")
+        if self.start not in spec.start_states:
+            raise RecipeError(f"recipe {self.name}: start must be one of {list(spec.start_states)}, not {self.start!r}")
+        if set(self.record_phases) - set(spec.expert_phases):
             raise RecipeError(f"recipe {self.name}: record_phases {list(self.record_phases)} must be phases of the "
-                              f"expert: {list(EXPERT_PHASES)}")
-        if self.goal not in GOAL_FLAGS:
-            raise RecipeError(f"recipe {self.name}: goal must be one of {list(GOAL_FLAGS)}, not {self.goal!r}")
+                              f"expert: {list(spec.expert_phases)}")
+        if self.goal not in spec.goal_flags:
+            raise RecipeError(f"recipe {self.name}: goal must be one of {list(spec.goal_flags)}, not {self.goal!r}")
         if self.keep not in ("success", "all"):
             raise RecipeError(f"recipe {self.name}: keep must be 'success' or 'all', not {self.keep!r}")
 
@@ -164,8 +135,12 @@ def load_recipe(name_or_path: str | Path) -> Recipe:
         raise RecipeError(f"recipe {path}: expert must be a table ([expert]), not {expert!r}")
     raw = typed_fields(Recipe, raw, f"recipe {path}", skip=("expert",))
     try:
-        raw["expert"] = ExpertSettings(**typed_fields(ExpertSettings, expert, f"recipe {path}, [expert]"))
-    except RecipeError as e:
+        settings = get_spec(raw.get("task_name", DEFAULT_TASK)).expert_settings
+    except TaskError as e:
+        raise RecipeError(f"recipe {path}: {e}") from None
+    try:
+        raw["expert"] = settings(**typed_fields(settings, expert, f"recipe {path}, [expert]"))
+    except ValueError as e:
         raise RecipeError(str(e) if str(e).startswith("recipe ") else f"recipe {path}, {e}") from None
     return Recipe(**raw)
 

@@ -1,4 +1,4 @@
-"""Record GearAssembly-v1 rollouts into a LeRobotDataset, the way ManiSkill's `RecordEpisode` records trajectories.
+"""Record a task's rollouts into a LeRobotDataset, the way ManiSkill's `RecordEpisode` records trajectories.
 
 Two halves, so that episodes can run in worker processes and be written by one: `FrameBuffer` wraps the env and,
 while `recording` is on, buffers the observation each action was chosen from, the action, the stage and the name
@@ -37,6 +37,7 @@ from policy_composer.data.features import (
     read_info,
     read_sidecar,
 )
+from policy_composer.tasks.registry import DEFAULT_TASK, get_spec, task_of
 
 VCODEC = "h264"  # not "auto": it picks NVENC and fails without a GPU
 
@@ -59,17 +60,15 @@ def _flat(action, env) -> np.ndarray:
 
 
 def _labels(env, info: dict | None = None) -> tuple[int, np.ndarray, np.ndarray]:
-    """The privileged labels of the scene now (`info`: its `evaluate()`, where the caller has it): its stage, the
-    gear's offset in the hand and the predicates."""
-    info = env.evaluate() if info is None else info
-    flags = np.array([float(v[0]) for v in env.predicates(info).values()], dtype=np.float32)
-    return int(info["stage"][0]), env.gear_offset_in_hand()[0].cpu().numpy().astype(np.float32), flags
+    """The privileged labels of the scene now (`info`: its `evaluate()`, where the caller has it): see
+    TaskDescription.labels."""
+    return task_of(env).labels(env, info)
 
 
 class FrameBuffer(gym.Wrapper):
-    """Wraps a single GearAssembly-v1 env (obs_mode "rgb") and buffers the frames of the episode being recorded,
-    with `cameras` (default: every camera the env renders; it may render more, for a controller that reads them).
-    Frames are plain arrays and the controller's name, so they can be sent to the process that writes them."""
+    """Wraps a single env of one of the library's tasks (obs_mode "rgb") and buffers the frames of the episode being
+    recorded, with `cameras` (default: every camera the env renders; it may render more, for a controller that reads
+    them). Frames are plain arrays and the controller's name, so they can be sent to the process that writes them."""
 
     def __init__(self, env: gym.Env, cameras: tuple[str, ...] | None = None):
         super().__init__(env)
@@ -113,7 +112,7 @@ class FrameBuffer(gym.Wrapper):
         interrupt.check()  # a Ctrl-C swallowed mid-episode (say, by a rebuilt scene's __del__) ends it here
         u = self.env.unwrapped
         flat = _flat(action, u)
-        obs, reward, terminated, truncated, info = self.env.step(u.flat_to_dict_action(flat))
+        obs, reward, terminated, truncated, info = self.env.step(task_of(u).env_action(u, flat))
         if self.recording:
             prev = self._obs
             self._frames.append({
@@ -187,12 +186,12 @@ class LeRobotWriter:
 
     def __init__(self, root: str | Path, task: str, fps: int, resolution: int, cameras: tuple[str, ...],
                  repo_id: str | None = None, resume: bool = False, metadata: dict | None = None,
-                 vcodec: str = VCODEC, streaming_encoding: bool = True):
+                 vcodec: str = VCODEC, streaming_encoding: bool = True, task_name: str = DEFAULT_TASK):
         from lerobot.configs.video import RGBEncoderConfig
 
         self.video = {"rgb_encoder": RGBEncoderConfig(vcodec=vcodec), "streaming_encoding": streaming_encoding}
         self.root, self.task, self.fps, self.cameras = Path(root), task, fps, tuple(cameras)
-        self.features = dataset_features(self.cameras, resolution)
+        self.features = dataset_features(get_spec(task_name), self.cameras, resolution)
         if resume:
             journal.recover(self.root)
         if self.root.exists():

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, TypeVar
 
 from policy_composer.data.atomic import FolderTaken, check_replaceable, replacing_folder, safetensors_errors
 from policy_composer.data.lock import one_writer
+from policy_composer.learning.config import ADDED_FIELDS
 from policy_composer.learning.training import is_main_process, processes, wait_for_everyone
 
 if TYPE_CHECKING:  # torch is imported where a model is saved or built, so that the command line starts fast
@@ -123,6 +124,7 @@ def load_config(path: str | Path, config_cls: type[C], what: str, train_hint: st
     if kind != config_cls.__name__:
         raise CheckpointError(f"{path} holds a {kind} checkpoint, not a {what} ({config_cls.__name__})")
     known = {f.name for f in fields(config_cls)}
+    raw = {**{k: v for k, v in ADDED_FIELDS.items() if k in known}, **raw}
     if set(raw) != known:
         raise CheckpointError(f"checkpoint {path} comes from another configuration of the {what} (fields "
                               f"{sorted(set(raw) ^ known)} differ); retrain it with `{train_hint}`")

@@ -8,13 +8,17 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, NoReturn
 
+from policy_composer.tasks.registry import DEFAULT_TASK, TASKS
+
 # The image encoders `learning.layers.image_encoder` builds.
 BACKBONES = ("spatial", "small", "resnet18")
 
 
-def option(default: Any, help: str = "", choices: tuple | None = None, minimum: float | None = None) -> Any:
-    """A config field with a help text and, optionally, the values it may take or its smallest value."""
-    return field(default=default, metadata={"help": help, "choices": choices, "minimum": minimum})
+def option(default: Any, help: str = "", choices: tuple | None = None, minimum: float | None = None,
+           camera: bool = False) -> Any:
+    """A config field with a help text and, optionally, the values it may take or its smallest value; `camera`: it
+    names a camera of the config's task (the command line offers every task's)."""
+    return field(default=default, metadata={"help": help, "choices": choices, "minimum": minimum, "camera": camera})
 
 
 def check_options(config: Any) -> None:
@@ -27,6 +31,9 @@ def check_options(config: Any) -> None:
         if minimum is not None and value is not None and value < minimum:
             raise ValueError(f"{type(config).__name__}.{f.name} must be at least {minimum}, not {value!r}")
 
+
+# Fields a checkpoint's config may lack, saved before the field existed, and the value every such checkpoint had.
+ADDED_FIELDS = {"task": DEFAULT_TASK}
 
 
 def refuse(message: str) -> NoReturn:
@@ -41,9 +48,11 @@ def refuse(message: str) -> NoReturn:
 
 @dataclass
 class TrainingConfig:
-    """What every trained model's configuration holds: Adam's step size and weight decay, the minibatch size, the
-    epochs and the seed. A model's config subclasses it, adds its own fields and may change a default or a help."""
+    """What every trained model's configuration holds: the task it is trained for, Adam's step size and weight decay,
+    the minibatch size, the epochs and the seed. A model's config subclasses it, adds its own fields and may change a
+    default or a help."""
 
+    task: str = option(DEFAULT_TASK, "the task the model is trained for", tuple(TASKS))
     lr: float = 1e-3
     weight_decay: float = 0.0
     batch_size: int = option(64, "minibatch size", minimum=1)

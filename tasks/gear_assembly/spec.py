@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from policy_composer.tasks.base import TaskSpec
+
 ENV_ID = "GearAssembly-v1"
 MAX_EPISODE_STEPS = 400
 CAMERA_NAMES = ("head", "left_forearm", "right_forearm")
@@ -71,3 +73,77 @@ class EnvSettings:
 
     def __post_init__(self):
         object.__setattr__(self, "cameras", tuple(self.cameras))  # a list when read back from JSON
+
+# What a label's command is a step from (see ExpertConfig.from_arm): "command", the expert's own last command; "arm",
+# the measured hand, for a labeller of states it does not drive (DAgger).
+EXPERT_LABELS = ("command", "arm")
+
+
+@dataclass(frozen=True)
+class ExpertSettings:
+    grasp_offset_mm: float = 12.0
+    teleop: bool = False
+    arrival_error_mm: float = 4.0  # teleop: how much further off its rough carry may leave the gear
+    # Pre-insertion starts: the gear is off the peg's axis by up to this (a uniform draw in the disc), whatever the
+    # grasp, as after a carry that watched the gear; 0: the hand is off by a rough carry's error and the gear by
+    # its grasp offset besides, so where the gear sits in the fingers tells which way the peg is.
+    gear_arrival_mm: float = 0.0
+    noise_mm: float = 0.0  # DART: the executed TCP target's drifting offset (see ExpertConfig.noise)
+    # What a label's command is a step from (see ExpertConfig.from_arm): "command", the expert's own last command;
+    # "arm", the measured hand, for a labeller of states it does not drive (DAgger).
+    labels: str = "command"
+
+    def __post_init__(self):
+        if self.labels not in EXPERT_LABELS:
+            raise ValueError(f"[expert] labels must be one of {list(EXPERT_LABELS)}, not {self.labels!r}")
+        low, high = GRASP_OFFSET_MM
+        if not low <= self.grasp_offset_mm <= high:
+            raise ValueError(f"[expert] grasp_offset_mm must be between {low:g} and {high:g} mm, not "
+                              f"{self.grasp_offset_mm!r}")
+        for name in ("arrival_error_mm", "gear_arrival_mm", "noise_mm"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"[expert] {name} must be at least 0, not {getattr(self, name)!r}")
+
+    def reset_options(self) -> dict:
+        """The env's reset options these settings ask for: how the gear sits in the hand at a pre-insertion start."""
+        options = {"grasp_offset_max": self.grasp_offset_mm / 1000.0}
+        if self.gear_arrival_mm > 0:
+            options["gear_arrival_max"] = self.gear_arrival_mm / 1000.0
+        return options
+
+    def config(self):
+        """The scripted expert's ExpertConfig for these settings (the simulator loads only when it is asked for)."""
+        from policy_composer.tasks.gear_assembly.expert import ExpertConfig  # noqa: PLC0415  (the simulator)
+
+        return ExpertConfig(grasp_offset=self.grasp_offset_mm / 1000.0, teleop=self.teleop,
+                            arrival_error=self.arrival_error_mm / 1000.0, noise=self.noise_mm / 1000.0,
+                            from_arm=self.labels == "arm")
+
+
+SPEC = TaskSpec(
+    name="gear-assembly",
+    env_id=ENV_ID,
+    cameras=CAMERA_NAMES,
+    state_names=STATE_NAMES,
+    action_names=ACTION_NAMES,
+    predicates=PREDICATES,
+    start_states=START_STATES,
+    expert_phases=EXPERT_PHASES,
+    goal_flags=GOAL_FLAGS,
+    expert_settings=ExpertSettings,
+    instruction="Insert the gear held by the left gripper onto the peg held by the right arm.",
+    card={"scene": "two Panda arms: the left one picks a gear up and puts it onto a peg the right one holds",
+          "state_action": "`observation.state`: both arms' 7 joint angles and gripper widths; `action`: both arms' 7 "
+                          "joint targets (rad) and gripper commands (-1 closed, 1 open)",
+          "stage": "0 pick, 1 move, 2 insert, 3 done", "success": "the gear seated on the peg"},
+    policy_camera="left_forearm",
+    latent_camera="left_forearm",
+    goal_camera="head",
+    predicate_cameras=("head", "left_forearm"),
+    # The move keeps the carry's last frames at the pre-insertion pose too, so it learns where the carry ends, not
+    # only where the pre-insertion pose's tolerance begins.
+    demonstrations={"pick": ("gear-transport-demos", (0,)), "move": ("gear-transport-demos", (1, 2)),
+                    "insert": ("gear-insertion-demos", None)},
+    corrections={"move": "gear-move-dagger", "insert": "gear-insertion-dagger"},
+    insertion_windows=INSERTION_WINDOWS,
+)

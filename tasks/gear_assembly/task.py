@@ -3,29 +3,57 @@ knows, and the simulator's predicates kept apart as the privileged truth."""
 
 from __future__ import annotations
 
+from functools import cache
 from operator import methodcaller
 
-from policy_composer.tasks.base import TaskDescription
-from policy_composer.tasks.gear_assembly.env import gear_whereabouts
-from policy_composer.tasks.gear_assembly.scene import GearScene
-from policy_composer.tasks.gear_assembly.spec import (
-    ACTION_NAMES,
-    CAMERA_NAMES,
-    ENV_ID,
-    INSERTION_WINDOWS,
-    PREDICATES,
-    STATE_NAMES,
+import numpy as np
+
+from policy_composer.tasks.base import THRESHOLD, TaskDescription
+from policy_composer.tasks.gear_assembly.env import (
+    GRASP_OFFSET_MAX,
+    PRE_INSERT_RADIUS,
+    gear_whereabouts,
 )
+from policy_composer.tasks.gear_assembly.geometry import GearSpec
+from policy_composer.tasks.gear_assembly.kinematics import HandToPeg
+from policy_composer.tasks.gear_assembly.scene import GearScene
+from policy_composer.tasks.gear_assembly.spec import SPEC
 from policy_composer.tasks.gear_assembly.subtasks import INSERTIONS, SUBTASKS, TASK_SEQUENCE
 
+# A gear in the fingers is at most the pick-up's error along them off the hand: held farther than this from the peg's
+# axis by kinematics, it is neither at the pre-insertion pose nor on the peg, whatever the images look like.
+HELD_GEAR_REACH = PRE_INSERT_RADIUS + GRASP_OFFSET_MAX
+
+
+@cache
+def _hand_to_peg() -> HandToPeg:
+    return HandToPeg(GearSpec())
+
+
+def hand_to_peg(state: np.ndarray) -> np.ndarray:
+    """Where the left hand is over the peg, by both arms' forward kinematics, for joint states (N, 16)."""
+    return _hand_to_peg()(state)
+
+
+def rule_out(p: dict[str, float], hand: np.ndarray) -> dict[str, float]:
+    """A held gear is neither at nor on the peg where the hand is farther than HELD_GEAR_REACH from the peg's axis."""
+    if float(np.linalg.norm(hand[:2])) > HELD_GEAR_REACH:
+        p["gear_at_peg"] = 0.0
+        if p["gear_grasped"] >= THRESHOLD:
+            p["gear_on_peg"] = 0.0
+    return p
+
+
+def labels(env, info: dict | None = None) -> tuple[int, np.ndarray, np.ndarray]:
+    """The privileged labels of the scene now (`info`: its `evaluate()`, where the caller has it): its stage, the
+    gear's offset in the hand and the predicates."""
+    info = env.evaluate() if info is None else info
+    flags = np.array([float(v[0]) for v in env.predicates(info).values()], dtype=np.float32)
+    return int(info["stage"][0]), env.gear_offset_in_hand()[0].cpu().numpy().astype(np.float32), flags
+
 TASK = TaskDescription(
-    name="gear-assembly",
-    env_id=ENV_ID,
+    spec=SPEC,
     arm="left_arm",
-    cameras=CAMERA_NAMES,
-    state_names=STATE_NAMES,
-    action_names=ACTION_NAMES,
-    predicates=PREDICATES,
     progress=("gear_grasped", "gear_lifted", "gear_at_peg", "gear_seated"),
     grasped="gear_grasped",
     subtasks=SUBTASKS,
@@ -36,7 +64,9 @@ TASK = TaskDescription(
     hold_action=methodcaller("hold_action"),
     env_action=lambda env, action: env.flat_to_dict_action(action),
     whereabouts=gear_whereabouts,
+    labels=labels,
     stage=lambda info: int(info["stage"][0]),
-    instruction="Insert the gear held by the left gripper onto the peg held by the right arm.",
-    insertion_windows=INSERTION_WINDOWS,
+    extra_proprioception=("hand_to_peg_x", "hand_to_peg_y", "hand_to_peg_z"),
+    proprioception=hand_to_peg,
+    rule_out=rule_out,
 )

@@ -17,12 +17,12 @@ from policy_composer.tasks.gear_assembly.spec import CAMERA_NAMES
 
 def cmd_train_policy(args: argparse.Namespace) -> int:
     """Behaviour-clone the CNN policy of one subtask on its demonstrations."""
-    from policy_composer.policies.cnn.configuration_cnn import DEMONSTRATIONS
     from policy_composer.policies.cnn.train import train_cnn_policy
+    from policy_composer.tasks.registry import get_spec
 
     training_threads(args.threads)
     config = config_from(args, CNNPolicyConfig)
-    dataset = args.dataset or [dataset_path(DEMONSTRATIONS[config.subtask][0])]
+    dataset = args.dataset or [dataset_path(get_spec(config.task).demonstrations[config.subtask][0])]
     out = args.out or str(MODELS / "cnn" / config.subtask)
     t0 = time.time()
     _, losses = train_cnn_policy(dataset, config, out=out)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from policy_composer.policies.base import Controller
-from policy_composer.tasks.random_walk import LEFT, RIGHT
+from policy_composer.tasks.random_walk.env import LEFT, RIGHT
 
 
 @dataclass(frozen=True)

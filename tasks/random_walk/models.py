@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import torch
 
-from policy_composer.policies.random_walk import RandomWalkOption
-from policy_composer.tasks.random_walk import RIGHT
+from policy_composer.tasks.random_walk.controllers import RandomWalkOption
+from policy_composer.tasks.random_walk.env import RIGHT
 
 
 def _wrong_positions(pos: torch.Tensor, num_states: int, generator: torch.Generator) -> torch.Tensor:
