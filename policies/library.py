@@ -49,10 +49,11 @@ class LibrarySources:
     lerobot: tuple[LeRobotSource, ...] = field(default_factory=tuple)
     max_grasp_offset: float = 0.012  # the pick-up's perception error along the fingers (m)
     gear_noise: float = 0.0  # noise on the planner's one privileged input (the part's position), per axis (m)
-    insertion: str = "feel"  # how the planned insertions go: a key of the task's `insertions`
+    insertion: str = ""  # how the planned insertions go: a key of the task's `insertions` ("": its first)
     task: str = DEFAULT_TASK
 
     def __post_init__(self):
+        object.__setattr__(self, "insertion", self.insertion or next(iter(self.description.insertions)))
         if self.insertion not in self.description.insertions:
             raise LibraryError(f"no insertion {self.insertion!r}: choose one of "
                                f"{', '.join(self.description.insertions)}")
@@ -136,7 +137,7 @@ def model_ids(names, sources: LibrarySources) -> dict[str, str]:
         if path is not None and Path(path).is_dir():
             ids[name] = weights_id(path)
         planned_insert = kind is not None and kind.planned and name == f"{kind.name}_insert"
-        if planned_insert and sources.insertion != LibrarySources.insertion:  # it behaves otherwise
+        if planned_insert and sources.insertion != next(iter(sources.description.insertions)):  # not the default
             ids[name] = f"{ids.get(name, kind.name)}, {sources.insertion} insertion"
     return ids
 

@@ -151,11 +151,11 @@ def compose_episode(env, library: dict[str, Controller], world: GearWorldModel, 
         obs, _, _, _, info = env.step(task.env_action(u, running.act(obs)))
         current.steps += 1
         result.steps = step + 1
-        result.reached = max(result.reached, task.stage(info))
+        result.reached = max(result.reached, task.stage(u, info))
         if on_frame is not None:
             on_frame(obs, running.name, world.score_observation(obs))
     # The scorer's verdict, from the info the last step (or the reset) gave.
-    result.success, result.gear = bool(info["success"][0]), task.whereabouts(info)
+    result.success, result.gear = bool(info["success"][0]), task.whereabouts(u, info)
     if running is None:
         result.ended = "task done" if result.success else "nothing applicable"
     else:

@@ -173,11 +173,11 @@ class TaskDescription:
     truth: Callable[[Any], dict[str, torch.Tensor]]  # env -> each predicate, (B,) bool: privileged
     hold_action: Callable[[Any], torch.Tensor]  # env -> the flat action that holds every joint where it is
     env_action: Callable[[Any, torch.Tensor], Any]  # (env, flat action) -> what env.step takes
-    whereabouts: Callable[[dict], str]  # an env's info -> where the part is, in words (the compositions' log)
+    whereabouts: Callable[[Any, dict], str]  # (env, its info) -> where the part is, in words (the compositions' log)
     # (env, its evaluate() or None) -> the recordings' privileged labels: the stage reached, the part's offset in the
     # hand (3), each predicate (0 or 1)
     labels: Callable[[Any, dict | None], tuple[int, np.ndarray, np.ndarray]]
-    stage: Callable[[dict], int]  # an env's info -> how many of the task's stages it has reached
+    stage: Callable[[Any, dict], int]  # (env, its info) -> how many of the task's stages it has reached
     # The predicate classifiers' proprioception beyond observation.state: its names, and (N, state) -> (N, names);
     # and how the kinematics it gives rule predicates out: (probabilities, one frame's extra entries) -> probabilities.
     extra_proprioception: tuple[str, ...] = ()

@@ -9,7 +9,8 @@ from importlib import import_module
 
 from policy_composer.tasks.base import TaskDescription, TaskSpec
 
-TASKS = {"gear-assembly": "policy_composer.tasks.gear_assembly"}  # name -> package
+TASKS = {"gear-assembly": "policy_composer.tasks.gear_assembly",  # name -> package
+         "peg-insertion-side": "policy_composer.tasks.peg_insertion_side"}
 DEFAULT_TASK = "gear-assembly"
 
 

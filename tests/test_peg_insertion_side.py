@@ -7,6 +7,8 @@ import pytest
 import torch
 from mani_skill.utils.structs.pose import Pose
 
+from policy_composer.policies.arm import Outcome, run_activation
+from policy_composer.policies.library import LibrarySources, build_library
 from policy_composer.tasks.peg_insertion_side.env import CAMERA_NAMES, PREDICATES, make_env, predicates, strict_success
 
 
@@ -60,3 +62,28 @@ def test_it_is_maniskills_env_with_the_wrist_camera():
         assert all(obs["sensor_data"][c]["rgb"].float().std() > 0 for c in CAMERA_NAMES)  # rendered, not blank
     finally:
         env.close()
+
+
+@pytest.fixture(scope="module")
+def peg_library():
+    env = make_env(obs_mode="state_dict", max_episode_steps=1000)
+    sources = LibrarySources(task="peg-insertion-side", max_grasp_offset=0.0)
+    yield env, build_library(env, ["mp_pick", "mp_move", "mp_insert"], sources)
+    env.close()
+
+
+@pytest.mark.parametrize("seed", [0, 2])
+def test_the_librarys_controller_kinds_run_the_peg_task_from_its_description(peg_library, seed):
+    """The gear's motion-planning kind on a task it was not written for, through the same code: the library builds
+    PegInsertionSide-v1's controllers from the task's description, each starts only inside its initiation set,
+    the planned pick-up and carry reach their terminations, and the open-loop insertion's verdict (sensed, from the
+    oracle here) is the strict success's."""
+    env, library = peg_library
+    obs, _ = env.reset(seed=seed)
+    assert not library["mp_move"].can_start(obs) and not library["mp_insert"].can_start(obs)
+    for name in ("mp_pick", "mp_move"):
+        obs = run_activation(env, library[name], obs, seed)
+        assert library[name].outcome is Outcome.DONE, (name, library[name].reason)
+    assert not library["mp_pick"].can_start(obs) and library["mp_insert"].can_start(obs)
+    run_activation(env, library["mp_insert"], obs, seed)
+    assert (library["mp_insert"].outcome is Outcome.DONE) == bool(strict_success(env)[0])

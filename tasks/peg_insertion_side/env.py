@@ -1,5 +1,5 @@
 """ManiSkill's own PegInsertionSide-v1, as mani-skill ships it, seen through this project's eyes: the subtask predicates
-its recordings would be labelled with, and a strict success beside ManiSkill's.
+its recordings are labelled with, a strict success beside ManiSkill's, and the observation entry the library reads.
 
 **Task Description:** the Panda (``panda_wristcam``: ManiSkill's ``hand_camera`` on the hand, and the env's
 ``base_camera``) picks up a peg lying on the table and pushes its head sideways into the hole of a box.
@@ -11,7 +11,8 @@ wider), the hole's place in the box, the peg's and the box's positions and yaws 
 plane and within the hole's radius; it has no bound the other way, so a peg pushed through and past the box counts
 (ManiSkill issue 1391). ``strict_success`` asks, as well, that the head be no farther in than the box's far face.
 
-The env is made by mani-skill itself (``gym.make``), not copied: this module only reads its state.
+The env is made by mani-skill itself (``gym.make``), not copied: this module reads its state, and one observation
+wrapper adds ``extra.state`` (the arm's joints and the gripper's width, the library's `observation.state`).
 """
 
 from __future__ import annotations
@@ -20,24 +21,37 @@ import gymnasium as gym
 import mani_skill.envs  # noqa: F401  (registers PegInsertionSide-v1)
 import torch
 
-ENV_ID = "PegInsertionSide-v1"
-ROBOT = "panda_wristcam"
-CAMERA_NAMES = ("base_camera", "hand_camera")
+from policy_composer.tasks.peg_insertion_side.spec import (  # noqa: F401  (CAMERA_NAMES and PREDICATES: the task's names)
+    CAMERA_NAMES,
+    CONTROL_MODE,
+    ENV_ID,
+    PREDICATES,
+    ROBOT,
+)
+
 HOLE_ENTRY = -0.015  # ManiSkill's bound: the peg's head this far short of the hole's centre plane, along its axis (m)
 PRE_INSERTION_DISTANCE = 0.05  # the peg's head at most this far in front of the box's near face (m)
 ALIGN_TOL_DEG = 10.0  # the peg's axis within this of the hole's at the pre-insertion pose
-# What the controllers' initiation sets and terminations would be made of on this task (labels of its recordings).
-PREDICATES = {
-    "peg_grasped": "the peg is in the gripper",
-    "peg_at_hole": "the peg is grasped, its axis on the hole's and its head in front of the box (pre-insertion pose)",
-    "peg_inserted": "the peg's head is in the hole (ManiSkill's success)",
-    "peg_seated": "the peg's head is in the hole and not past the box's far face (the strict success)",
-}
+
+
+class ArmState(gym.ObservationWrapper):
+    """Adds `extra.state`, (B, 8): the arm's 7 joint angles and the gripper's width (both fingers' positions summed),
+    as the library's controllers and recordings read a task's joint state."""
+
+    def observation(self, obs):
+        if not isinstance(obs, dict) or "agent" not in obs:
+            raise ValueError("the library reads PegInsertionSide-v1 with obs_mode 'state_dict' or 'rgb', not "
+                             f"{self.env.unwrapped.obs_mode!r}")
+        qpos = obs["agent"]["qpos"]
+        obs.setdefault("extra", {})["state"] = torch.cat([qpos[:, :7], qpos[:, 7:8] + qpos[:, 8:9]], dim=-1)
+        return obs
 
 
 def make_env(**kwargs) -> gym.Env:
-    """PegInsertionSide-v1 with the wrist camera robot; `kwargs` go to `gym.make` (obs_mode, control_mode, ...)."""
-    return gym.make(ENV_ID, robot_uids=ROBOT, **kwargs)
+    """PegInsertionSide-v1 with the wrist camera robot, in joint-position control unless `control_mode` says otherwise;
+    `kwargs` go to `gym.make` (obs_mode, max_episode_steps, sensor_configs, ...)."""
+    kwargs.setdefault("control_mode", CONTROL_MODE)
+    return ArmState(gym.make(ENV_ID, robot_uids=ROBOT, **kwargs))
 
 
 def box_half_depth(env) -> torch.Tensor:

@@ -48,14 +48,13 @@ import torch
 from transforms3d.quaternions import axangle2quat, qinverse, qmult, quat2axangle
 
 from policy_composer.policies.mp.planning import SceneCollisionModel, plan_rrt_connect, time_parameterize
-from policy_composer.tasks.base import PlanningError
-from policy_composer.tasks.panda import JOINT_HIGH, JOINT_LOW, ArmIK, hand_down_quat, se3
+from policy_composer.tasks.base import PlanningError, np0
+from policy_composer.tasks.panda import GRIPPER_CLOSED, GRIPPER_OPEN, JOINT_HIGH, JOINT_LOW, ArmIK, hand_down_quat, se3
 from policy_composer.tasks.peg_insertion_side.env import HOLE_ENTRY, box_half_depth, strict_success
+from policy_composer.tasks.peg_insertion_side.scene import box_obstacles, pose0
+from policy_composer.tasks.peg_insertion_side.spec import EXPERT_PHASES  # noqa: F401  (its phases, in order)
 from policy_composer.tasks.scene import HeldObject, Obstacle, table_obstacle
 
-EXPERT_PHASES = ("approach", "descend", "close", "lift", "move", "align", "insert", "done")
-GRIPPER_OPEN = 1.0  # normalised gripper commands: +1 -> fingers at 0.04 m, -1 -> -0.01 m (see the module docstring)
-GRIPPER_CLOSED = -1.0
 HELD_MARGIN = 0.004  # around the held peg, the wrist camera and the box's walls in the collision checks (m)
 CAMERA_LINK = "camera_link"  # panda_wristcam's wrist camera
 
@@ -110,15 +109,6 @@ class EpisodeResult:
     phases: list[str] = field(default_factory=list)  # the expert's phase after choosing each step's action
 
 
-def _np(x: torch.Tensor) -> np.ndarray:
-    return x[0].detach().cpu().numpy().astype(np.float64)
-
-
-def _pose(pose) -> sapien.Pose:
-    """Env 0 of a ManiSkill batched pose."""
-    return sapien.Pose(_np(pose.p), _np(pose.q))
-
-
 def _rotation_between(q_from: np.ndarray, q_to: np.ndarray) -> tuple[np.ndarray, float]:
     """(axis, angle in [0, pi]) of the world-frame rotation taking orientation q_from to q_to."""
     rel = qmult(q_to, qinverse(q_from))
@@ -169,16 +159,16 @@ class PegInsertionSideExpert:
 
     # ------------------------------------------------------------------ the scene (privileged)
     def _peg(self) -> sapien.Pose:
-        return _pose(self.env.peg.pose)
+        return pose0(self.env.peg.pose)
 
     def _hole(self) -> sapien.Pose:
-        return _pose(self.env.box_hole_pose)
+        return pose0(self.env.box_hole_pose)
 
     def _tcp(self) -> sapien.Pose:
-        return _pose(self.env.agent.tcp.pose)
+        return pose0(self.env.agent.tcp.pose)
 
     def _qpos(self) -> np.ndarray:
-        return _np(self.env.agent.robot.get_qpos())
+        return np0(self.env.agent.robot.get_qpos())
 
     def peg_goal(self, head_x: float) -> sapien.Pose:
         """The peg's pose on the hole's axis, its frame the hole's, its head at `head_x` along the axis from the
@@ -332,14 +322,7 @@ class PegInsertionSideExpert:
 
     def _scene_obstacles(self) -> list[Obstacle]:
         """The table and the box's four walls, each grown by HELD_MARGIN."""
-        box = self.env.box
-        walls = box._objs[0].find_component_by_type(sapien.physx.PhysxRigidBaseComponent)
-        world = _pose(box.pose)
-        out = [table_obstacle()]
-        for i, shape in enumerate(walls.get_collision_shapes()):
-            half = np.asarray(shape.half_size, dtype=float) + HELD_MARGIN
-            out.append(Obstacle(f"box_wall{i}", coal.Box(*(2 * half)), se3(world * shape.get_local_pose())))
-        return out
+        return [table_obstacle(), *box_obstacles(self.env, HELD_MARGIN)]
 
     def _held_peg(self) -> HeldObject:
         """The peg as the planner carries it: a cylinder around its square section, along its axis, placed in the
@@ -356,7 +339,7 @@ class PegInsertionSideExpert:
         carries it on the hand's side toward the peg's head, and the planner's Panda model has no camera."""
         agent = self.env.agent
         link = agent.robot.links_map[CAMERA_LINK]
-        tcp_to_link = _pose(agent.tcp.pose).inv() * _pose(link.pose)
+        tcp_to_link = pose0(agent.tcp.pose).inv() * pose0(link.pose)
         return [(coal.Box(*(2 * (np.asarray(shape.half_size, dtype=float) + HELD_MARGIN))),
                  tcp_to_link * shape.get_local_pose()) for shape in link._objs[0].get_collision_shapes()]
 

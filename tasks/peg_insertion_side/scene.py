@@ -1,0 +1,110 @@
+"""PegInsertionSide-v1's scene as the arm's controllers know it (world frame): their hand from its joints, and what the
+task lets the planner know: where the peg lies (given from the simulator, with `planner_noise` in the table's plane
+where the figures ask for it) and where the box and its hole are. Where the peg sits in the hand once grasped, the
+planner does not know: it assumes the grasp it planned."""
+
+from __future__ import annotations
+
+import coal
+import numpy as np
+import pinocchio as pin
+import sapien
+
+from policy_composer.tasks.base import np0
+from policy_composer.tasks.scene import Obstacle, table_obstacle
+
+MARGIN = 0.004  # around the box's walls in the collision checks (m)
+
+
+def pose0(pose) -> sapien.Pose:
+    """Env 0 of a ManiSkill batched pose."""
+    return sapien.Pose(np0(pose.p), np0(pose.q))
+
+
+def box_obstacles(env, margin: float = MARGIN) -> list[Obstacle]:
+    """The box's four walls around the hole, each grown by `margin`, as ManiSkill builds them."""
+    box = env.unwrapped.box
+    walls = box._objs[0].find_component_by_type(sapien.physx.PhysxRigidBaseComponent)
+    world = pose0(box.pose)
+    return [Obstacle(f"box_wall{i}", coal.Box(*(2 * (np.asarray(shape.half_size, dtype=float) + margin))),
+                     _se3(world * shape.get_local_pose())) for i, shape in enumerate(walls.get_collision_shapes())]
+
+
+def _se3(pose: sapien.Pose) -> pin.SE3:
+    return pin.SE3(pin.Quaternion(float(pose.q[0]), *map(float, pose.q[1:])).matrix(), np.asarray(pose.p, dtype=float))
+
+
+def grasp_offset(half_length: float) -> float:
+    """Where the hand grasps the peg, back from its centre toward its tail (m): ManiSkill's choice, far enough back
+    that the fingers stay out of the box with the head in the hole."""
+    return max(0.05, half_length / 2 + 0.01)
+
+
+class PegScene:
+    def __init__(self, env):
+        self.env = env.unwrapped if hasattr(env, "unwrapped") else env
+        self.planner_noise = 0.0
+        self.rng = np.random.default_rng()
+
+    def seed(self, seed: int | None) -> None:
+        self.rng = np.random.default_rng(seed)
+
+    @property
+    def half_length(self) -> float:
+        return float(self.env.peg_half_sizes[0, 0])
+
+    @property
+    def half_width(self) -> float:
+        return float(self.env.peg_half_sizes[0, 1])
+
+    @property
+    def box_half_depth(self) -> float:
+        return float(self.env.peg_half_sizes[0, 0])  # ManiSkill builds the box as deep as the peg is long
+
+    def planner_peg(self) -> sapien.Pose:
+        """The peg's pose as the pick-up's planner is given it (the task's privileged planner input)."""
+        peg = pose0(self.env.peg.pose)
+        if self.planner_noise > 0:
+            peg = sapien.Pose(peg.p + np.append(self.rng.normal(0.0, self.planner_noise, 2), 0.0), peg.q)
+        return peg
+
+    def hole(self) -> sapien.Pose:
+        """The hole's pose, x along its axis into the box (the box is part of the scene the planner knows)."""
+        return pose0(self.env.box_hole_pose)
+
+    def tcp(self) -> np.ndarray:
+        return np0(self.env.agent.tcp.pose.p)
+
+    def finger_dir(self) -> np.ndarray:
+        """The peg's axis, level: the hand grasps across it."""
+        d = self.planner_peg().to_transformation_matrix()[:3, 0].copy()
+        d[2] = 0.0
+        return d / np.linalg.norm(d)
+
+    def planning_obstacles(self) -> list[Obstacle]:
+        return [table_obstacle(), *box_obstacles(self.env)]
+
+    def guard_obstacles(self) -> list[Obstacle]:
+        """Nothing besides the arm itself: the fingers touch the table and the peg meets the box."""
+        return []
+
+    def head_along_tcp_x(self) -> float:
+        """+1 where the TCP's x points toward the peg's head, -1 where toward its tail (the hand grasps across the peg
+        either way round)."""
+        tcp_x = pose0(self.env.agent.tcp.pose).to_transformation_matrix()[:3, 0]
+        return 1.0 if float(tcp_x @ self.planner_peg().to_transformation_matrix()[:3, 0]) >= 0 else -1.0
+
+    def peg_in_hand(self) -> sapien.Pose:
+        """Where the planned grasp holds the peg, in the TCP frame: across the fingers' centre, `grasp_offset` back
+        from its centre, its axis along the TCP's x (toward its head or tail as the hand took it)."""
+        sign = self.head_along_tcp_x()
+        # The TCP's z points down into the hand, the lying peg's z up: half a turn about the TCP's x (the peg's head
+        # along it) or its y (the head the other way).
+        turn = [0.0, 1.0, 0.0, 0.0] if sign > 0 else [0.0, 0.0, 1.0, 0.0]
+        return sapien.Pose([sign * grasp_offset(self.half_length), 0.0, 0.0], turn)
+
+    def held_part(self, widen: float, lengthen: float) -> tuple[float, float, pin.SE3]:
+        """The peg, as the planned grasp holds it, as a cylinder around its square section along its axis."""
+        along_x = pin.SE3(pin.utils.rotate("y", np.pi / 2), np.zeros(3))  # the cylinder's axis (z) onto the peg's x
+        return (self.half_width * np.sqrt(2.0) + widen, 2 * self.half_length + lengthen,
+                _se3(self.peg_in_hand()) * along_x)

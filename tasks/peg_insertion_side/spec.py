@@ -1,0 +1,75 @@
+"""What PegInsertionSide-v1 shows and takes as the library reads it, importable without the simulator."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from policy_composer.tasks.base import TaskSpec
+
+ENV_ID = "PegInsertionSide-v1"
+ROBOT = "panda_wristcam"
+CAMERA_NAMES = ("base_camera", "hand_camera")
+ARM_JOINTS = tuple(f"panda_joint{i}" for i in range(1, 8))
+# observation.state: the arm's joint angles and the gripper's width (the adapter adds it to ManiSkill's observation).
+STATE_NAMES = (*ARM_JOINTS, "gripper_width")
+# action: pd_joint_pos, the 7 joint targets (rad) and the gripper command in [-1, 1] (ManiSkill maps it linearly to a
+# finger target of -0.01..0.04 m: -1 closes with force, 1 opens).
+ACTION_NAMES = (*ARM_JOINTS, "gripper")
+CONTROL_MODE = "pd_joint_pos"
+MAX_EPISODE_STEPS = 100  # ManiSkill's default
+EXPERT_PHASES = ("approach", "descend", "close", "lift", "move", "align", "insert", "done")
+# What the controllers' initiation sets and terminations are made of (labels of the recordings).
+PREDICATES = {
+    "peg_grasped": "the peg is in the gripper",
+    "peg_at_hole": "the peg is grasped, its axis on the hole's and its head in front of the box (pre-insertion pose)",
+    "peg_inserted": "the peg's head is in the hole (ManiSkill's success)",
+    "peg_seated": "the peg's head is in the hole and not past the box's far face (the strict success)",
+}
+
+
+@dataclass(frozen=True)
+class ExpertSettings:
+    """A recipe's [expert] table on this task (see expert.ExpertConfig)."""
+
+    noise_mm: float = 0.0  # DART: the executed TCP target's drifting offset while aligning and inserting
+    labels: str = "command"  # "arm": each label a step from the measured hand (DAgger)
+
+    def __post_init__(self):
+        if self.labels not in ("command", "arm"):
+            raise ValueError(f"[expert] labels must be one of ['command', 'arm'], not {self.labels!r}")
+        if self.noise_mm < 0:
+            raise ValueError(f"[expert] noise_mm must be at least 0, not {self.noise_mm!r}")
+
+    def reset_options(self) -> dict:
+        return {}
+
+    def config(self):
+        """The scripted expert's ExpertConfig for these settings (the simulator loads only when it is asked for)."""
+        from policy_composer.tasks.peg_insertion_side.expert import ExpertConfig  # noqa: PLC0415  (the simulator)
+
+        return ExpertConfig(noise=self.noise_mm / 1000.0, from_arm=self.labels == "arm")
+
+
+SPEC = TaskSpec(
+    name="peg-insertion-side",
+    env_id=ENV_ID,
+    cameras=CAMERA_NAMES,
+    state_names=STATE_NAMES,
+    action_names=ACTION_NAMES,
+    predicates=PREDICATES,
+    start_states=("table",),
+    expert_phases=EXPERT_PHASES,
+    goal_flags=("success",),
+    expert_settings=ExpertSettings,
+    instruction="Pick up the peg and insert its head into the hole in the box.",
+    card={"scene": "a Panda with a wrist camera picks a peg up and pushes it sideways into a box's hole",
+          "state_action": "`observation.state`: the arm's 7 joint angles and the gripper's width; `action`: its 7 "
+                          "joint targets (rad) and the gripper command (-1 closed, 1 open)",
+          "stage": "0 pick, 1 move, 2 insert, 3 done",
+          "success": "the peg's head in the hole, not past the box's far face"},
+    policy_camera="hand_camera",
+    latent_camera="hand_camera",
+    goal_camera="base_camera",
+    predicate_cameras=CAMERA_NAMES,
+    demonstrations={"insert": ("peg-insertion-demos", None)},
+)

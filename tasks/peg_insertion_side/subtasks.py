@@ -1,0 +1,101 @@
+"""PegInsertionSide-v1's subtasks as waypoints: pick the peg up from above, carry it to the pre-insertion pose (its
+axis on the hole's, its head in front of the box), push it along the hole's axis.
+
+The planned controllers know the peg's pose on the table (the task's privileged planner input) and the hole's, and
+assume the grasp they planned: a peg that slid or pivoted in the fingers arrives off the hole's axis, and a pick-up
+that perceived the peg off along its axis leaves it that far off along the hand (the open-loop failures the paper's
+Table I shows on the gear)."""
+
+from __future__ import annotations
+
+import numpy as np
+import sapien
+
+from policy_composer.tasks.base import PlanningError, Subtask, Waypoint, np0
+from policy_composer.tasks.panda import GRIPPER_CLOSED, GRIPPER_OPEN, ik_hand_down, line_to
+from policy_composer.tasks.peg_insertion_side.env import HOLE_ENTRY, PRE_INSERTION_DISTANCE
+from policy_composer.tasks.peg_insertion_side.scene import grasp_offset
+
+APPROACH_HEIGHT = 0.06  # TCP above the grasp point before descending (m)
+LIFT_HEIGHT = 0.08
+PRE_INSERTION = 0.02  # the head in front of the box's near face at the pre-insertion pose (m)
+SEATED = 0.02  # the insertion pushes the head this far past the hole's centre plane (m; the far face is 85 mm on)
+assert PRE_INSERTION < PRE_INSERTION_DISTANCE and SEATED > HOLE_ENTRY
+
+
+class Pick(Subtask):
+    name = "pick"
+    initiation = "peg out of the hand, not in the hole"
+
+    def can_start(self, percept):
+        return not percept["peg_grasped"] and not percept["peg_inserted"]
+
+    def waypoints(self, ik, scene, q_now, grasp_error, percept):
+        peg = scene.planner_peg()
+        axis = peg.to_transformation_matrix()[:3, 0]
+        grasp = peg.p - axis * (grasp_offset(scene.half_length) + grasp_error)
+        quat, q_pre = ik_hand_down(ik, scene.finger_dir(), grasp + [0, 0, APPROACH_HEIGHT], q_now)
+        down = line_to(ik, q_pre, grasp, quat, GRIPPER_OPEN, step=0.006)
+        up = line_to(ik, down.q, grasp + [0, 0, LIFT_HEIGHT], quat, GRIPPER_CLOSED, step=0.01)
+        return [Waypoint("free", q_pre, GRIPPER_OPEN, settle=4), down,
+                Waypoint("hold", down.q, GRIPPER_CLOSED, settle=8), up]
+
+    def succeeded(self, percept):
+        return percept["peg_grasped"], f"the peg is not in the gripper after the lift ({percept.why('peg_grasped')})"
+
+
+def peg_target_tcp(scene, head_x: float) -> sapien.Pose:
+    """The TCP pose that puts the peg, held as planned, on the hole's axis with its head `head_x` along it from the
+    hole's centre plane."""
+    peg = scene.hole() * sapien.Pose([head_x - scene.half_length, 0.0, 0.0])
+    return peg * scene.peg_in_hand().inv()
+
+
+class Move(Subtask):
+    name = "move"
+    initiation = "peg in the hand, not yet at the pre-insertion pose nor in the hole"
+    holds_part = True
+
+    def can_start(self, percept):
+        return percept["peg_grasped"] and not percept["peg_at_hole"] and not percept["peg_inserted"]
+
+    def waypoints(self, ik, scene, q_now, grasp_error, percept):
+        pre = peg_target_tcp(scene, -scene.box_half_depth - PRE_INSERTION)
+        q, ok = ik.solve(pre, q_now)
+        if not ok:
+            raise PlanningError(f"no IK solution for the pre-insertion pose, the TCP at {np.round(pre.p, 3)}")
+        return [Waypoint("free", q, GRIPPER_CLOSED, settle=6)]
+
+    def succeeded(self, percept):
+        return percept["peg_at_hole"], (f"the peg is not at the pre-insertion pose in front of the hole "
+                                        f"({percept.why('peg_at_hole')})")
+
+
+class Insert(Subtask):
+    """Push the peg along the hole's axis, open loop, from where the hand holds it, to the depth the planned grasp
+    puts the head at."""
+
+    name = "insert"
+    initiation = "peg in the hand at the pre-insertion pose, or part-way in and not seated"
+    holds_part = True
+
+    def can_start(self, percept):
+        return percept["peg_at_hole"] or (percept["peg_grasped"] and percept["peg_inserted"]
+                                          and not percept["peg_seated"])
+
+    def waypoints(self, ik, scene, q_now, grasp_error, percept):
+        goal = peg_target_tcp(scene, SEATED)
+        tcp = scene.tcp()
+        # From where the hand is, along the hole's axis (its orientation kept): the lateral offset the hand has is the
+        # planner's best guess of the peg's.
+        axis = scene.hole().to_transformation_matrix()[:3, 0]
+        end = tcp + axis * float(axis @ (goal.p - tcp))
+        return [line_to(ik, q_now, end, np0(ik.arm.tcp.pose.q), GRIPPER_CLOSED, step=0.004, settle=6)]
+
+    def succeeded(self, percept):
+        return percept["peg_seated"], f"the peg is not in the hole ({percept.why('peg_seated')})"
+
+
+SUBTASKS = {s.name: s for s in (Pick(), Move(), Insert())}
+INSERTIONS = {"straight": SUBTASKS["insert"]}
+TASK_SEQUENCE = ("pick", "move", "insert")

@@ -1,0 +1,73 @@
+"""PegInsertionSide-v1 as the library reads it: the Panda's controllers, the peg's subtasks, the scene the planner may
+know, and the simulator's predicates kept apart as the privileged truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from policy_composer.tasks.base import TaskDescription
+from policy_composer.tasks.peg_insertion_side.env import predicates
+from policy_composer.tasks.peg_insertion_side.scene import PegScene, pose0
+from policy_composer.tasks.peg_insertion_side.spec import SPEC
+from policy_composer.tasks.peg_insertion_side.subtasks import INSERTIONS, SUBTASKS, TASK_SEQUENCE
+
+PROGRESS = ("peg_grasped", "peg_at_hole", "peg_inserted", "peg_seated")
+
+
+def hold_action(env) -> torch.Tensor:
+    """(1, 8): the arm and the gripper at their current targets."""
+    controllers = env.agent.controller.controllers
+    gripper = controllers["gripper"]
+    low, high = gripper.config.lower, gripper.config.upper
+    return torch.cat([controllers["arm"]._target_qpos, 2 * (gripper._target_qpos[..., :1] - low) / (high - low) - 1],
+                     dim=-1)
+
+
+def env_action(env, action: torch.Tensor) -> torch.Tensor:
+    return torch.as_tensor(action, dtype=torch.float32).reshape(1, -1)
+
+
+def stage(env, info: dict | None = None) -> int:
+    """0 pick, 1 move, 2 insert, 3 done, from the predicates."""
+    flags = predicates(env)
+    if bool(flags["peg_seated"][0]):
+        return 3
+    if bool(flags["peg_at_hole"][0] | flags["peg_inserted"][0]):
+        return 2
+    return int(bool(flags["peg_grasped"][0]))
+
+
+def labels(env, info: dict | None = None) -> tuple[int, np.ndarray, np.ndarray]:
+    """The stage, the peg's centre in the TCP's frame (m) and the predicates."""
+    u = env.unwrapped
+    flags = np.array([float(v[0]) for v in predicates(u).values()], dtype=np.float32)
+    offset = (pose0(u.agent.tcp.pose).inv() * pose0(u.peg.pose)).p.astype(np.float32)
+    return stage(u), offset, flags
+
+
+def whereabouts(env, info: dict | None = None) -> str:
+    flags = predicates(env)
+    for name, words in (("peg_seated", "in the hole"), ("peg_inserted", "pushed past the box's far face"),
+                        ("peg_at_hole", "in the hand in front of the hole"), ("peg_grasped", "in the hand")):
+        if bool(flags[name][0]):
+            return words
+    return "out of the hand"
+
+
+TASK = TaskDescription(
+    spec=SPEC,
+    arm="agent",
+    progress=PROGRESS,
+    grasped="peg_grasped",
+    subtasks=SUBTASKS,
+    sequence=TASK_SEQUENCE,
+    insertions=INSERTIONS,
+    scene=PegScene,
+    truth=predicates,
+    hold_action=hold_action,
+    env_action=env_action,
+    whereabouts=whereabouts,
+    labels=labels,
+    stage=stage,
+)
