@@ -121,7 +121,7 @@ class ArmController(Controller):
         return self._back_off_reason if self._back_off is not None else ""
 
     def _guarded_command(self, obs) -> tuple[np.ndarray, float] | None:
-        """The next command, unless the subtask says to stop here (a release it would not survive, or the gear led
+        """The next command, unless the subtask says to stop here (a release it would not survive, or the part led
         off its course): then the back-off's next one."""
         if self._back_off is None:
             cmd = self.next_command(obs)
@@ -199,7 +199,7 @@ class ScriptedController(ArmController):
         super().reset(obs, seed)
         self.segments = self.plan(obs, seed)
         # A plan may start away from the measured joints (an arm that was pushing against something lags its last
-        # commands, and the plan's first target is solved for where the gear should be): ramp there at a safe speed.
+        # commands, and the plan's first target is solved for where the part should be): ramp there at a safe speed.
         first = next((s for s in self.segments if len(s.q)), None)
         if first is not None:
             lead = ramp(self._last, first.q[0], self.rate_hz)[:-1]
