@@ -93,9 +93,9 @@ class SubtaskController(ScriptedController):
 
 
 def check_camera(env, camera: str, who: str) -> None:
-    if camera not in env.camera_names:
+    if camera not in env.scene.sensors:
         raise ValueError(f"{who} reads camera {camera!r}, which this env does not render (it has "
-                         f"{list(env.camera_names)}); make the env with that camera")
+                         f"{list(env.scene.sensors)}); make the env with that camera")
     if "rgb" not in env.obs_mode:
         raise ValueError(f"{who} needs camera images: make the env with obs_mode='rgb', not {env.obs_mode!r}")
 

@@ -25,6 +25,11 @@ if TYPE_CHECKING:  # the description is read without the simulator, torch or the
 THRESHOLD = 0.5  # a predicate holds where its probability is at least this
 
 
+def episode_limit(env) -> int:
+    """The control steps an episode of `env` may take: its registered step limit (400 where it has none)."""
+    return getattr(env.spec, "max_episode_steps", None) or 400
+
+
 def np0(x: torch.Tensor) -> np.ndarray:
     """Env 0 of a batched tensor, as float64 numpy."""
     return x[0].detach().cpu().numpy().astype(np.float64)
@@ -144,6 +149,8 @@ class TaskSpec:
     expert_phases: tuple[str, ...]  # the scripted expert's phases, in order (a recipe records some of them)
     goal_flags: tuple[str, ...]  # the env's `evaluate()` flags an episode may be recorded to reach
     expert_settings: type  # the dataclass of a recipe's [expert] table; its `config()` is the expert's config
+    env_settings: type  # the dataclass of what a recording's env is made with (`resolution`, `cameras`, ...)
+    control_freq: int  # control steps per second: the datasets' fps
     instruction: str  # what the task asks, in words (LeRobot's `task` string)
     card: Mapping[str, str]  # the dataset card's words: "scene", "state_action", "stage", "success"
     # The cameras each learned model sees unless its configuration says otherwise.
@@ -174,6 +181,10 @@ class TaskDescription:
     hold_action: Callable[[Any], torch.Tensor]  # env -> the flat action that holds every joint where it is
     env_action: Callable[[Any, torch.Tensor], Any]  # (env, flat action) -> what env.step takes
     whereabouts: Callable[[Any, dict], str]  # (env, its info) -> where the part is, in words (the compositions' log)
+    # (obs_mode, env settings, cameras to render or None for the settings') -> the env, one of it
+    make_env: Callable[..., Any]
+    expert: Callable[[Any, Any], Any]  # (env, the expert's config) -> the scripted expert (privileged)
+    observe: Callable[[Any], dict]  # the env (as made) -> its observation of the scene now
     # (env, its evaluate() or None) -> the recordings' privileged labels: the stage reached, the part's offset in the
     # hand (3), each predicate (0 or 1)
     labels: Callable[[Any, dict | None], tuple[int, np.ndarray, np.ndarray]]

@@ -5,11 +5,15 @@ from __future__ import annotations
 
 import pytest
 import torch
+from conftest import run_cli
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from mani_skill.utils.structs.pose import Pose
 
+from policy_composer.data.features import read_info, read_sidecar
 from policy_composer.policies.arm import Outcome, run_activation
 from policy_composer.policies.library import LibrarySources, build_library
 from policy_composer.tasks.peg_insertion_side.env import CAMERA_NAMES, PREDICATES, make_env, predicates, strict_success
+from policy_composer.tasks.peg_insertion_side.spec import STATE_NAMES
 
 
 @pytest.fixture(scope="module")
@@ -87,3 +91,24 @@ def test_the_librarys_controller_kinds_run_the_peg_task_from_its_description(peg
     assert not library["mp_pick"].can_start(obs) and library["mp_insert"].can_start(obs)
     run_activation(env, library["mp_insert"], obs, seed)
     assert (library["mp_insert"].outcome is Outcome.DONE) == bool(strict_success(env)[0])
+
+
+def test_the_recorder_records_the_peg_tasks_expert_from_both_cameras(tmp_path):
+    """The same recording path as the gear's: a recipe of the peg task, its expert, its two cameras, its 8-D state and
+    action and its predicates, into a LeRobot dataset that LeRobot loads; `--clearance`, a setting the task does not
+    have, is refused in one line."""
+    root = tmp_path / "peg"
+    result = run_cli("record", "peg-full-task-demos", "--episodes", "1", "--resolution", "32", "--root", str(root),
+                     cwd=tmp_path)
+    assert result.returncode == 0, result.stderr[-2000:]
+    info = read_info(root)
+    assert {f"observation.images.{c}" for c in CAMERA_NAMES} <= set(info["features"])
+    assert info["features"]["observation.state"]["names"] == list(STATE_NAMES)
+    assert info["features"]["predicates"]["names"] == list(PREDICATES)
+    sidecar = read_sidecar(root)
+    assert sidecar["task_name"] == "peg-insertion-side" and sidecar["episodes"][0]["success"]
+    frames = LeRobotDataset("local/peg", root=root)
+    assert frames.num_episodes == 1 and frames[0]["observation.images.hand_camera"].shape == (3, 32, 32)
+    refused = run_cli("record", "peg-full-task-demos", "--clearance", "2", "--root", str(tmp_path / "no"),
+                      cwd=tmp_path)
+    assert refused.returncode == 2 and "PegInsertionSide-v1 has no setting clearance" in refused.stderr

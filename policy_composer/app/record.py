@@ -26,8 +26,8 @@ from policy_composer.policies.library import (
     check_models,
     model_ids,
 )
-from policy_composer.tasks.gear_assembly.rollout import make_env
-from policy_composer.tasks.gear_assembly.spec import CONTROL_FREQ, EXPERT_PHASES, EnvSettings
+from policy_composer.tasks.base import episode_limit
+from policy_composer.tasks.registry import get_task
 
 
 @dataclass
@@ -46,7 +46,7 @@ def recipe_controllers(recipe: Recipe) -> tuple[str, ...]:
 
 
 def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None, seed: int | None = None,
-                  resume: bool = False, settings: EnvSettings | None = None, progress: bool = True,
+                  resume: bool = False, settings=None, progress: bool = True,
                   sources: LibrarySources | None = None, workers: int = 1) -> dict:
     """Record until the dataset at `root` holds `episodes` episodes (per controller, for the "controllers"
     driver); returns its sidecar (seeds, success, ...).
@@ -75,15 +75,15 @@ def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None,
         previous = read_sidecar(root) if resume else {}
         if previous:
             check_resume(root, previous, recipe, seed, settings, models)
-            settings, seed = EnvSettings(**previous["env"]), previous["next_seed"]
-        settings, seed = settings or EnvSettings(), seed or 0
+            settings, seed = recipe.spec.env_settings(**previous["env"]), previous["next_seed"]
+        settings, seed = settings or recipe.spec.env_settings(), seed or 0
         first_seed = first_seed_of(previous) if previous else None
         first_seed = seed if first_seed is None else first_seed
         needed = cameras_needed(controllers, sources)
         if not previous:  # the recipe's cameras, and any others its controllers read
             settings = replace(settings, cameras=tuple(dict.fromkeys((*recipe.cameras, *needed))))
-        writer = LeRobotWriter(root, recipe.task, CONTROL_FREQ, settings.resolution, settings.cameras, resume=resume,
-                               task_name=recipe.task_name,
+        writer = LeRobotWriter(root, recipe.task, recipe.spec.control_freq, settings.resolution, settings.cameras,
+                               resume=resume, task_name=recipe.task_name,
                                metadata={"recipe": recipe.name, "task_name": recipe.task_name, "env": asdict(settings),
                                          "first_seed": first_seed, "controller_models": models,
                                          "expert": asdict(recipe.expert), "train_episodes": recipe.train_episodes})
@@ -101,7 +101,7 @@ def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None,
         return writer.sidecar
 
 
-def check_resume(root: Path, previous: dict, recipe: Recipe, seed: int | None, settings: EnvSettings | None,
+def check_resume(root: Path, previous: dict, recipe: Recipe, seed: int | None, settings,
                  models: dict[str, str]) -> None:
     """Refuse to continue a dataset with another recipe, seed, env setting or controller model than its own."""
     if previous.get("recipe") != recipe.name:
@@ -158,20 +158,18 @@ class EpisodeRecorder:
     driver, built once. Called with (controller name or None for the expert, seed), runs that episode and returns
     what the recipe keeps of it, or None."""
 
-    def __init__(self, recipe: Recipe, settings: EnvSettings, sources: LibrarySources,
-                 controllers: tuple[str, ...]):
+    def __init__(self, recipe: Recipe, settings, sources: LibrarySources, controllers: tuple[str, ...]):
         from policy_composer.data.recorder import FrameBuffer
-        from policy_composer.tasks.gear_assembly.expert import GearAssemblyExpert
 
+        task = get_task(recipe.task_name)
         # A resumed dataset keeps its cameras; a controller added to it may read more: rendered, not recorded.
         rendered = tuple(dict.fromkeys((*settings.cameras, *cameras_needed(controllers, sources))))
-        self.buffer = FrameBuffer(make_env("rgb", settings.resolution, settings.clearance_mm, rendered),
-                                  settings.cameras)
+        self.buffer = FrameBuffer(task.make_env("rgb", settings, rendered), settings.cameras)
         self.recipe = recipe
         if recipe.driver != "expert":
             self.library = build_library(self.buffer, controllers, sources)
         if recipe.driver != "controllers":
-            self.expert = GearAssemblyExpert(self.buffer, recipe.expert.config())
+            self.expert = task.expert(self.buffer, recipe.expert.config())
 
     def __call__(self, item: tuple[str | None, int]) -> RecordedEpisode | None:
         name, seed = item
@@ -184,17 +182,16 @@ class EpisodeRecorder:
 
     def _expert(self, seed: int) -> RecordedEpisode | None:
         """The scripted expert from the seed's reset, recording the recipe's phases."""
-        from policy_composer.tasks.gear_assembly.rollout import episode_limit
-
         recipe, buffer, expert = self.recipe, self.buffer, self.expert
+        phases = recipe.spec.expert_phases
         obs, _ = buffer.reset(seed=seed, options=recipe.reset_options())
         expert.reset(seed)
         buffer.controller = expert.name
         info = None
         # The episode ends once the expert has left the last phase the recipe records.
-        last = max(map(EXPERT_PHASES.index, recipe.record_phases), default=len(EXPERT_PHASES) - 1)
+        last = max(map(phases.index, recipe.record_phases), default=len(phases) - 1)
         for _ in range(episode_limit(buffer)):
-            if expert.done or EXPERT_PHASES.index(expert.phase) > last:
+            if expert.done or phases.index(expert.phase) > last:
                 break
             buffer.recording = not recipe.record_phases or expert.phase in recipe.record_phases
             label = expert.act(obs)
@@ -212,7 +209,6 @@ class EpisodeRecorder:
         (where the policy's command collided, say); a back-off is left out after its first step, since the
         controller does not choose it (its guard does)."""
         from policy_composer.app.controller_table import START_PHASE, expert_until
-        from policy_composer.tasks.gear_assembly.rollout import episode_limit
 
         recipe, buffer, expert = self.recipe, self.buffer, self.expert
         controller = self.library[recipe.controllers[0]]

@@ -77,14 +77,15 @@ class FrameBuffer(gym.Wrapper):
             raise ValueError(f"the recorder writes one episode at a time; got num_envs={u.num_envs}")
         if "rgb" not in u.obs_mode:
             raise ValueError(f"recording needs camera images: make the env with obs_mode='rgb' (got {u.obs_mode!r})")
-        width, height = u.camera_size
-        if width != height:
-            raise ValueError(f"recordings use square camera images; got {width}x{height}")
-        self.cameras = tuple(cameras or u.camera_names)
-        missing = [c for c in self.cameras if c not in u.camera_names]
+        sizes = {name: (s.config.width, s.config.height) for name, s in u.scene.sensors.items()}
+        self.cameras = tuple(cameras or sizes)
+        missing = [c for c in self.cameras if c not in sizes]
         if missing:
             raise ValueError(f"the recorder records cameras {missing} that the env does not render; make the env "
                              f"with them")
+        width, height = sizes[self.cameras[0]]
+        if {sizes[c] for c in self.cameras} != {(width, width)}:
+            raise ValueError(f"recordings use square camera images of one size; got {[sizes[c] for c in self.cameras]}")
         self.resolution, self.fps = width, int(u.control_freq)
         self.recording = True
         self.controller = "unknown"  # set by the driver: the controller whose action the next step applies
@@ -99,7 +100,8 @@ class FrameBuffer(gym.Wrapper):
     def observe(self):
         """The env's observation now, from which the next frame is recorded: after steps taken around the buffer
         (unrecorded and unrendered, say by the expert bringing the arm to where a subtask starts)."""
-        return self._starting_from(self.env.unwrapped.observe())
+        u = self.env.unwrapped
+        return self._starting_from(task_of(u).observe(self.env))
 
     def _starting_from(self, obs):
         """`obs` is the state the next frame records, with the scene's labels there."""

@@ -9,6 +9,7 @@ from typing import Protocol
 import numpy as np
 import torch
 
+from policy_composer.tasks.base import episode_limit  # noqa: F401  (the episode runs' step limit)
 from policy_composer.tasks.gear_assembly.spec import EnvSettings
 
 
@@ -51,11 +52,6 @@ class EpisodeResult:
 def tile_cameras(obs: dict, cameras: tuple[str, ...]) -> np.ndarray:
     """The camera images of env 0 side by side (H x (W * n) x 3, uint8)."""
     return np.concatenate([obs["sensor_data"][c]["rgb"][0].cpu().numpy() for c in cameras], axis=1)
-
-
-def episode_limit(env) -> int:
-    """The env's registered step limit (GearAssembly-v1: 400)."""
-    return getattr(env.spec, "max_episode_steps", None) or 400
 
 
 def run_episode(env, policy: Policy, seed: int, max_steps: int | None = None, record_frames: bool = False,

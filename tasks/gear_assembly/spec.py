@@ -74,6 +74,7 @@ class EnvSettings:
     def __post_init__(self):
         object.__setattr__(self, "cameras", tuple(self.cameras))  # a list when read back from JSON
 
+
 # What a label's command is a step from (see ExpertConfig.from_arm): "command", the expert's own last command; "arm",
 # the measured hand, for a labeller of states it does not drive (DAgger).
 EXPERT_LABELS = ("command", "arm")
@@ -131,6 +132,8 @@ SPEC = TaskSpec(
     expert_phases=EXPERT_PHASES,
     goal_flags=GOAL_FLAGS,
     expert_settings=ExpertSettings,
+    env_settings=EnvSettings,
+    control_freq=CONTROL_FREQ,
     instruction="Insert the gear held by the left gripper onto the peg held by the right arm.",
     card={"scene": "two Panda arms: the left one picks a gear up and puts it onto a peg the right one holds",
           "state_action": "`observation.state`: both arms' 7 joint angles and gripper widths; `action`: both arms' 7 "

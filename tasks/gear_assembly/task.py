@@ -14,8 +14,10 @@ from policy_composer.tasks.gear_assembly.env import (
     PRE_INSERT_RADIUS,
     gear_whereabouts,
 )
+from policy_composer.tasks.gear_assembly.expert import GearAssemblyExpert
 from policy_composer.tasks.gear_assembly.geometry import GearSpec
 from policy_composer.tasks.gear_assembly.kinematics import HandToPeg
+from policy_composer.tasks.gear_assembly.rollout import make_env
 from policy_composer.tasks.gear_assembly.scene import GearScene
 from policy_composer.tasks.gear_assembly.spec import SPEC
 from policy_composer.tasks.gear_assembly.subtasks import INSERTIONS, SUBTASKS, TASK_SEQUENCE
@@ -60,6 +62,10 @@ TASK = TaskDescription(
     sequence=TASK_SEQUENCE,
     insertions=INSERTIONS,
     scene=GearScene,
+    make_env=lambda obs_mode, settings, cameras=None: make_env(obs_mode, settings.resolution, settings.clearance_mm,
+                                                              cameras or settings.cameras),
+    expert=GearAssemblyExpert,
+    observe=lambda env: env.unwrapped.observe(),
     truth=methodcaller("predicates"),
     hold_action=methodcaller("hold_action"),
     env_action=lambda env, action: env.flat_to_dict_action(action),

@@ -28,6 +28,17 @@ PREDICATES = {
 
 
 @dataclass(frozen=True)
+class EnvSettings:
+    """What a recorded dataset's env was made with (kept in the dataset, so a resumed recording matches)."""
+
+    resolution: int = 128  # camera width and height, pixels
+    cameras: tuple[str, ...] = CAMERA_NAMES
+
+    def __post_init__(self):
+        object.__setattr__(self, "cameras", tuple(self.cameras))  # a list when read back from JSON
+
+
+@dataclass(frozen=True)
 class ExpertSettings:
     """A recipe's [expert] table on this task (see expert.ExpertConfig)."""
 
@@ -61,6 +72,8 @@ SPEC = TaskSpec(
     expert_phases=EXPERT_PHASES,
     goal_flags=("success",),
     expert_settings=ExpertSettings,
+    env_settings=EnvSettings,
+    control_freq=20,
     instruction="Pick up the peg and insert its head into the hole in the box.",
     card={"scene": "a Panda with a wrist camera picks a peg up and pushes it sideways into a box's hole",
           "state_action": "`observation.state`: the arm's 7 joint angles and the gripper's width; `action`: its 7 "

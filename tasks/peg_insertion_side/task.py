@@ -7,12 +7,29 @@ import numpy as np
 import torch
 
 from policy_composer.tasks.base import TaskDescription
-from policy_composer.tasks.peg_insertion_side.env import predicates
+from policy_composer.tasks.peg_insertion_side.env import ArmState, make_env, predicates
+from policy_composer.tasks.peg_insertion_side.expert import PegInsertionSideExpert
 from policy_composer.tasks.peg_insertion_side.scene import PegScene, pose0
 from policy_composer.tasks.peg_insertion_side.spec import SPEC
 from policy_composer.tasks.peg_insertion_side.subtasks import INSERTIONS, SUBTASKS, TASK_SEQUENCE
 
 PROGRESS = ("peg_grasped", "peg_at_hole", "peg_inserted", "peg_seated")
+EPISODE_LIMIT = 200  # control steps an episode of the library's may take: twice ManiSkill's default
+
+
+def make_library_env(obs_mode: str, settings, cameras: tuple[str, ...] | None = None, **kwargs):
+    """The env at the settings' resolution; ManiSkill renders both cameras whichever are asked for. An episode may run
+    to EPISODE_LIMIT control steps (ManiSkill's default is MAX_EPISODE_STEPS)."""
+    kwargs.setdefault("max_episode_steps", EPISODE_LIMIT)
+    return make_env(obs_mode=obs_mode, sensor_configs={"width": settings.resolution, "height": settings.resolution},
+                    **kwargs)
+
+
+def observe(env) -> dict:
+    """The observation of the scene now, as the made env gives it (with `extra.state`)."""
+    while not isinstance(env, ArmState):
+        env = env.env
+    return env.observation(env.unwrapped.get_obs())
 
 
 def hold_action(env) -> torch.Tensor:
@@ -64,6 +81,9 @@ TASK = TaskDescription(
     sequence=TASK_SEQUENCE,
     insertions=INSERTIONS,
     scene=PegScene,
+    make_env=make_library_env,
+    expert=PegInsertionSideExpert,
+    observe=observe,
     truth=predicates,
     hold_action=hold_action,
     env_action=env_action,

@@ -9,12 +9,11 @@ from pathlib import Path
 from policy_composer.app.arguments import at_least, names
 from policy_composer.app.cli.options import env_options, episode_workers, library_sources, model_options, workers_option
 from policy_composer.data.recipes import available_recipes
-from policy_composer.tasks.gear_assembly.spec import EnvSettings
 
 
 def cmd_record(args: argparse.Namespace) -> int:
     """Record a recipe's dataset (see datasets/recipes/) into a LeRobotDataset."""
-    from dataclasses import replace
+    from dataclasses import fields, replace
 
     from policy_composer.app.record import recipe_controllers, record_recipe
     from policy_composer.data.catalog import format_summary, summarize
@@ -32,8 +31,13 @@ def cmd_record(args: argparse.Namespace) -> int:
         recipe = replace(recipe, controllers=chosen)
     root = Path(args.root) if args.root else Path("datasets") / recipe.name
     given = {k: v for k, v in (("resolution", args.resolution), ("clearance_mm", args.clearance)) if v is not None}
+    env_settings = recipe.spec.env_settings
+    unknown = [k for k in given if k not in {f.name for f in fields(env_settings)}]
+    if unknown:
+        raise RecipeError(f"{recipe.spec.env_id} has no setting {unknown[0].removesuffix('_mm')}: leave the flag out "
+                          f"for recipe {recipe.name}")
     previous = read_sidecar(root).get("env") if args.resume else None  # a flag not given keeps the dataset's value
-    settings = replace(EnvSettings(**previous), **given) if previous else EnvSettings(**given)
+    settings = replace(env_settings(**previous), **given) if previous else env_settings(**given)
     try:
         record_recipe(recipe, root, episodes=args.episodes, seed=args.seed, resume=args.resume, settings=settings,
                       sources=sources, workers=episode_workers(args))
