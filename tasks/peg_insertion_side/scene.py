@@ -11,6 +11,7 @@ import pinocchio as pin
 import sapien
 
 from policy_composer.tasks.base import np0
+from policy_composer.tasks.peg_insertion_side.env import box_half_depth
 from policy_composer.tasks.scene import Obstacle, table_obstacle
 
 MARGIN = 0.004  # around the box's walls in the collision checks (m)
@@ -59,7 +60,7 @@ class PegScene:
 
     @property
     def box_half_depth(self) -> float:
-        return float(self.env.peg_half_sizes[0, 0])  # ManiSkill builds the box as deep as the peg is long
+        return float(box_half_depth(self.env)[0])
 
     def planner_peg(self) -> sapien.Pose:
         """The peg's pose as the pick-up's planner is given it (the task's privileged planner input)."""
