@@ -59,12 +59,6 @@ def _flat(action, env) -> np.ndarray:
     return torch.as_tensor(action, dtype=torch.float32).reshape(-1).cpu().numpy()
 
 
-def _labels(env, info: dict | None = None) -> tuple[int, np.ndarray, np.ndarray]:
-    """The privileged labels of the scene now (`info`: its `evaluate()`, where the caller has it): see
-    TaskDescription.labels."""
-    return task_of(env).labels(env, info)
-
-
 class FrameBuffer(gym.Wrapper):
     """Wraps a single env of one of the library's tasks (obs_mode "rgb") and buffers the frames of the episode being
     recorded, with `cameras` (default: every camera the env renders; it may render more, for a controller that reads
@@ -73,6 +67,7 @@ class FrameBuffer(gym.Wrapper):
     def __init__(self, env: gym.Env, cameras: tuple[str, ...] | None = None):
         super().__init__(env)
         u = env.unwrapped
+        self.task = task_of(u)
         if u.num_envs != 1:
             raise ValueError(f"the recorder writes one episode at a time; got num_envs={u.num_envs}")
         if "rgb" not in u.obs_mode:
@@ -100,12 +95,11 @@ class FrameBuffer(gym.Wrapper):
     def observe(self):
         """The env's observation now, from which the next frame is recorded: after steps taken around the buffer
         (unrecorded and unrendered, say by the expert bringing the arm to where a subtask starts)."""
-        u = self.env.unwrapped
-        return self._starting_from(task_of(u).observe(self.env))
+        return self._starting_from(self.task.observe(self.env))
 
     def _starting_from(self, obs):
         """`obs` is the state the next frame records, with the scene's labels there."""
-        self._obs, self._labels = obs, _labels(self.env.unwrapped)
+        self._obs, self._labels = obs, self.task.labels(self.env.unwrapped, None)
         return obs
 
     def step(self, action, label=None):
@@ -114,7 +108,7 @@ class FrameBuffer(gym.Wrapper):
         interrupt.check()  # a Ctrl-C swallowed mid-episode (say, by a rebuilt scene's __del__) ends it here
         u = self.env.unwrapped
         flat = _flat(action, u)
-        obs, reward, terminated, truncated, info = self.env.step(task_of(u).env_action(u, flat))
+        obs, reward, terminated, truncated, info = self.env.step(self.task.env_action(u, flat))
         if self.recording:
             prev = self._obs
             self._frames.append({
@@ -127,7 +121,7 @@ class FrameBuffer(gym.Wrapper):
                 "controller": self.controller,  # its index in the dataset's list, when written
                 "next.success": np.array([bool(info["success"][0])]),
             })
-        self._obs, self._labels = obs, _labels(u, info)
+        self._obs, self._labels = obs, self.task.labels(u, info)
         return obs, reward, terminated, truncated, info
 
     @property

@@ -53,7 +53,7 @@ from policy_composer.tasks.panda import GRIPPER_CLOSED, GRIPPER_OPEN, JOINT_HIGH
 from policy_composer.tasks.peg_insertion_side.env import HOLE_ENTRY, box_half_depth, strict_success
 from policy_composer.tasks.peg_insertion_side.scene import box_obstacles, pose0
 from policy_composer.tasks.peg_insertion_side.spec import EXPERT_PHASES  # noqa: F401  (its phases, in order)
-from policy_composer.tasks.scene import HeldObject, Obstacle, table_obstacle
+from policy_composer.tasks.scene import HeldObject, table_obstacle
 
 HELD_MARGIN = 0.004  # around the held peg, the wrist camera and the box's walls in the collision checks (m)
 CAMERA_LINK = "camera_link"  # panda_wristcam's wrist camera
@@ -231,7 +231,8 @@ class PegInsertionSideExpert:
         # when the hand is within settle_tol: the PD arm sags a few mm under the held peg, short of its target.
         self._arrived = cfg.settle_tol if cfg.from_arm else 1e-3
         self._collision = SceneCollisionModel(self._ik.base())
-        self._walls = self._scene_obstacles()[1:]
+        self._obstacles = [table_obstacle(), *box_obstacles(self.env, HELD_MARGIN)]  # the walls grown by HELD_MARGIN
+        self._walls = self._obstacles[1:]
         self._camera = self._camera_shapes()
         self._choose_grasp()
         self._above = self._grasp * sapien.Pose([0.0, 0.0, -cfg.approach_height])
@@ -320,10 +321,6 @@ class PegInsertionSideExpert:
         local = data.oMf[model.getFrameId("panda_hand_tcp")]
         return self._ik.base() * sapien.Pose(local.translation, pin.Quaternion(local.rotation).coeffs()[[3, 0, 1, 2]])
 
-    def _scene_obstacles(self) -> list[Obstacle]:
-        """The table and the box's four walls, each grown by HELD_MARGIN."""
-        return [table_obstacle(), *box_obstacles(self.env, HELD_MARGIN)]
-
     def _held_peg(self) -> HeldObject:
         """The peg as the planner carries it: a cylinder around its square section, along its axis, placed in the
         hand joint's frame as the measured grasp holds it."""
@@ -361,7 +358,7 @@ class PegInsertionSideExpert:
         the reach, a grasp nearer the peg's centre reaches it, and the hand turned about, its wrist camera toward
         the tail, keeps the camera off the box. None feasible: the first is taken."""
         cfg = self.config
-        self._collision.set_scene(self._scene_obstacles(), held=None, fingers=0.04)
+        self._collision.set_scene(self._obstacles, held=None, fingers=0.04)
         peg = self._peg()
         axis = peg.to_transformation_matrix()[:3, 0]
         default = cfg.grasp_offset if cfg.grasp_offset is not None else max(0.05, self._half_length / 2 + 0.01)
@@ -411,7 +408,7 @@ class PegInsertionSideExpert:
         """Plan the carry to the pre-insertion pose from the lifted configuration, with the peg as held now."""
         cfg = self.config
         fingers = float(np.mean(self._qpos()[7:9]))
-        self._collision.set_scene(self._scene_obstacles(), held=self._held_peg(), fingers=fingers)
+        self._collision.set_scene(self._obstacles, held=self._held_peg(), fingers=fingers)
         goal_peg = self.peg_goal(-self._box_half_depth - cfg.pre_insertion)
         goal_tcp = goal_peg * self._peg().inv() * self._tcp()
         start = self._q_seed.copy()

@@ -11,6 +11,7 @@ import pinocchio as pin
 import sapien
 
 from policy_composer.tasks.base import np0
+from policy_composer.tasks.panda import se3
 from policy_composer.tasks.peg_insertion_side.env import box_half_depth
 from policy_composer.tasks.scene import Obstacle, table_obstacle
 
@@ -28,11 +29,7 @@ def box_obstacles(env, margin: float = MARGIN) -> list[Obstacle]:
     walls = box._objs[0].find_component_by_type(sapien.physx.PhysxRigidBaseComponent)
     world = pose0(box.pose)
     return [Obstacle(f"box_wall{i}", coal.Box(*(2 * (np.asarray(shape.half_size, dtype=float) + margin))),
-                     _se3(world * shape.get_local_pose())) for i, shape in enumerate(walls.get_collision_shapes())]
-
-
-def _se3(pose: sapien.Pose) -> pin.SE3:
-    return pin.SE3(pin.Quaternion(float(pose.q[0]), *map(float, pose.q[1:])).matrix(), np.asarray(pose.p, dtype=float))
+                     se3(world * shape.get_local_pose())) for i, shape in enumerate(walls.get_collision_shapes())]
 
 
 def grasp_offset(half_length: float) -> float:
@@ -108,4 +105,4 @@ class PegScene:
         """The peg, as the planned grasp holds it, as a cylinder around its square section along its axis."""
         along_x = pin.SE3(pin.utils.rotate("y", np.pi / 2), np.zeros(3))  # the cylinder's axis (z) onto the peg's x
         return (self.half_width * np.sqrt(2.0) + widen, 2 * self.half_length + lengthen,
-                _se3(self.peg_in_hand()) * along_x)
+                se3(self.peg_in_hand()) * along_x)

@@ -45,9 +45,9 @@ def env_action(env, action: torch.Tensor) -> torch.Tensor:
     return torch.as_tensor(action, dtype=torch.float32).reshape(1, -1)
 
 
-def stage(env, info: dict | None = None) -> int:
-    """0 pick, 1 move, 2 insert, 3 done, from the predicates."""
-    flags = predicates(env)
+def stage(env, info: dict | None = None, flags: dict | None = None) -> int:
+    """0 pick, 1 move, 2 insert, 3 done, from the predicates (`flags`, where the caller has them)."""
+    flags = predicates(env) if flags is None else flags
     if bool(flags["peg_seated"][0]):
         return 3
     if bool(flags["peg_at_hole"][0] | flags["peg_inserted"][0]):
@@ -58,9 +58,9 @@ def stage(env, info: dict | None = None) -> int:
 def labels(env, info: dict | None = None) -> tuple[int, np.ndarray, np.ndarray]:
     """The stage, the peg's centre in the TCP's frame (m) and the predicates."""
     u = env.unwrapped
-    flags = np.array([float(v[0]) for v in predicates(u).values()], dtype=np.float32)
+    flags = predicates(u)
     offset = (pose0(u.agent.tcp.pose).inv() * pose0(u.peg.pose)).p.astype(np.float32)
-    return stage(u), offset, flags
+    return stage(u, flags=flags), offset, np.array([float(v[0]) for v in flags.values()], dtype=np.float32)
 
 
 def whereabouts(env, info: dict | None = None) -> str:
