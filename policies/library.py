@@ -79,9 +79,11 @@ def all_names(sources: LibrarySources | None = None) -> tuple[str, ...]:
 
 
 def names_of_kind(kind: str, task: str = DEFAULT_TASK) -> tuple[str, ...]:
-    """The kind's controllers for the subtasks the task has."""
-    kind = get_kind(kind)
-    return tuple(f"{kind.name}_{s}" for s in kind.subtasks if s in get_task(task).subtasks)
+    """The kind's controllers for the subtasks the task has (and, for a kind learned from demonstrations, has
+    demonstrations of)."""
+    kind, task = get_kind(kind), get_task(task)
+    return tuple(f"{kind.name}_{s}" for s in kind.subtasks
+                 if s in task.subtasks and (not kind.demonstrated or s in task.spec.demonstrations))
 
 
 class _Models:

@@ -37,6 +37,7 @@ class ControllerKind:
     trained: bool = False  # its controllers run a trained model, which `load(path)` reads
     planned: bool = False  # its insertion goes down the peg as LibrarySources.insertion says (MP, DMP)
     module: str = ""  # where build, load and cameras are; default: `controller` beside the configuration
+    demonstrated: bool = False  # it serves only the subtasks its task has demonstrations of (TaskSpec.demonstrations)
 
     @property
     def controller_names(self) -> tuple[str, ...]:
@@ -53,11 +54,11 @@ _loaded = False
 
 
 def register_kind(name: str, label: str, subtasks: tuple[str, ...], trained: bool = False, planned: bool = False,
-                  module: str = ""):
+                  module: str = "", demonstrated: bool = False):
     """Decorate a kind's configuration class to add the kind to the registry (once per name)."""
 
     def register(config: type) -> type:
-        kind = ControllerKind(name, label, tuple(subtasks), config, trained, planned, module)
+        kind = ControllerKind(name, label, tuple(subtasks), config, trained, planned, module, demonstrated)
         if name in _KINDS and _KINDS[name] != kind:
             raise LibraryError(f"controller kind {name!r} is registered twice")
         _KINDS[name] = kind

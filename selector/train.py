@@ -16,10 +16,9 @@ from pathlib import Path
 import torch
 
 from policy_composer.data.features import DatasetError, image_key, read_sidecar
-from policy_composer.data.frames import load_frames, to_model_image
+from policy_composer.data.frames import check_distinct, load_frames, to_model_image
 from policy_composer.data.recipes import check_recipe
 from policy_composer.learning.checkpoint import check_out, finished, model_writer, weights_id
-from policy_composer.policies.cnn.train import check_distinct
 from policy_composer.selector.configuration import (
     DynamicsConfig,
     GoalScoreConfig,
@@ -31,7 +30,7 @@ from policy_composer.selector.dynamics import train_dynamics
 from policy_composer.selector.goal_score import train_goal_score, train_latent_goal_score
 from policy_composer.selector.predicates import held_out, train_predicates
 from policy_composer.selector.vae import VAE, load_vae, train_vae
-from policy_composer.tasks.registry import get_spec
+from policy_composer.tasks.registry import DEFAULT_TASK, get_spec
 
 
 def demo_split(root: str | Path, split: str) -> list[int]:
@@ -39,7 +38,8 @@ def demo_split(root: str | Path, split: str) -> list[int]:
     sidecar = read_sidecar(root)
     n = len(sidecar.get("episodes", []))
     if not n or not all(e["success"] for e in sidecar["episodes"]):
-        raise DatasetError(f"{root} is not a set of successful full-task demonstrations (record gear-full-task-demos)")
+        recipe = get_spec(sidecar.get("task_name") or DEFAULT_TASK).full_task_demos
+        raise DatasetError(f"{root} is not a set of successful full-task demonstrations (record {recipe})")
     k = sidecar.get("train_episodes") or n
     episodes = list(range(min(k, n))) if split == "train" else list(range(k, n))
     if not episodes:
@@ -66,8 +66,9 @@ def _train_world_model(out: Path, rollouts, demos, vae_config, dynamics_config, 
     vae_config = vae.config if vae is not None else vae_config or VAEConfig()  # a kept VAE keeps its camera
     dynamics_config = dynamics_config or DynamicsConfig()
     camera, size = vae_config.camera, vae_config.image_size
-    check_recipe(rollouts, "gear-controller-rollouts", "the dynamics models")
-    check_recipe(demos, "gear-full-task-demos", "the VAE")
+    spec = get_spec(vae_config.task)
+    check_recipe(rollouts, spec.controller_rollouts, "the dynamics models")
+    check_recipe(demos, spec.full_task_demos, "the VAE")
     recorded = read_sidecar(rollouts).get("controllers", [])
     unknown = [c for c in controllers or () if c not in recorded]
     if unknown:  # before any training: nothing would be trained for them
@@ -122,7 +123,7 @@ def _train_goal_scores(out: Path, demos, cameras: tuple[str, ...], config: GoalS
                        resume: bool) -> dict[str, float]:
     for camera in cameras:
         check_out(out / "goal_score" / camera, GoalScoreConfig)
-    check_recipe(demos, "gear-full-task-demos", "the goal score")
+    check_recipe(demos, get_spec(config.task).full_task_demos, "the goal score")
     frames = load_frames(demos, cameras, config.image_size, demo_split(demos, "train"),
                          required={"progress": (1,)}, progress=progress)
     vae = load_vae(out / "vae") if (out / "vae" / "config.json").is_file() else None

@@ -11,7 +11,7 @@ task's own package under `tasks/` fills it in.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
@@ -89,6 +89,9 @@ class Scene(Protocol):
     def guard_obstacles(self) -> list[Obstacle]:
         """What no command of a learned controller may put the arm into (not what its task touches)."""
 
+    def hand_quat(self, ik, q9: np.ndarray) -> np.ndarray:
+        """The hand's orientation (wxyz) that a learned controller's Cartesian steps keep, from the arm's joints."""
+
     def held_part(self, widen: float, lengthen: float) -> tuple[float, float, pin.SE3]:
         """The held part, at the nominal grasp, as a cylinder `widen` (m) wider in radius and `lengthen` longer than
         it: (radius, length, its centre's pose in the TCP frame, the cylinder's axis its z)."""
@@ -161,7 +164,12 @@ class TaskSpec:
     # The CNN policy of each subtask: the recipe of its demonstrations and the stages it learns from (None: all);
     # and the recipe of its DAgger corrections.
     demonstrations: Mapping[str, tuple[str, tuple[int, ...] | None]]
+    # The recipes of the goal scorers' full-task demonstrations and of the dynamics models' controller rollouts.
+    full_task_demos: str
+    controller_rollouts: str
     corrections: Mapping[str, str] = field(default_factory=dict)
+    episode_steps: int | None = None  # control steps a composed episode may take (None: the main job's profile says)
+    fixed_cameras: tuple[str, ...] = ()  # the cameras not on the arm (the paper compares them with those on it)
     insertion_windows: Mapping[str, tuple[float, float, float]] = field(default_factory=dict)
 
 
@@ -194,6 +202,18 @@ class TaskDescription:
     extra_proprioception: tuple[str, ...] = ()
     proprioception: Callable[[np.ndarray], np.ndarray] | None = None
     rule_out: Callable[[dict[str, float], np.ndarray], dict[str, float]] | None = None
+    # Where each subtask's trials and rollouts start: a start state of the env's (subtask -> the reset option
+    # "start"), or where the scripted expert, run unobserved from the reset, reaches a phase (subtask -> phase); any
+    # other subtask starts at the reset.
+    reset_starts: Mapping[str, str] = field(default_factory=dict)
+    expert_starts: Mapping[str, str] = field(default_factory=dict)
+    start_expert: Callable[[Any], Any] | None = None  # env -> the expert that takes the scene to `expert_starts`
+    step_unobserved: Callable[[Any, torch.Tensor], None] | None = None  # (env, flat action): physics, no renders
+
+    def settings(self, resolution: int, **settings):
+        """The task's env settings at `resolution`, with those of `settings` the task has (a gear's clearance)."""
+        names = {f.name for f in fields(self.spec.env_settings)}
+        return self.spec.env_settings(resolution=resolution, **{k: v for k, v in settings.items() if k in names})
 
     def subtask(self, name: str, insertion: str | None = None) -> Subtask:
         """The subtask `name`, its last one as `insertion` says (a key of `insertions`)."""

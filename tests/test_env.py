@@ -206,7 +206,7 @@ def test_the_right_forearm_camera_sees_the_gear_come_down_onto_the_peg(rgb_env):
 def test_the_expert_s_unrecorded_pick_up_renders_nothing_but_the_start_state(rgb_env, monkeypatch):
     """A controller's start state after the expert's pick-up (Table I's move column, the move's rollouts) is stepped
     without observations: one render, at the end; the physics is that of env.step's (the same state)."""
-    from policy_composer.app.controller_table import start_state
+    from policy_composer.app.starts import start_state
 
     u = rgb_env.unwrapped
     renders = []

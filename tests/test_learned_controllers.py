@@ -11,8 +11,8 @@ import torch
 from conftest import run_cli
 from transforms3d.quaternions import quat2mat
 
-from policy_composer.app.controller_table import start_state
 from policy_composer.app.record import record_recipe
+from policy_composer.app.starts import start_state
 from policy_composer.data.features import open_dataset, read_sidecar
 from policy_composer.data.frames import load_frames, to_model_image
 from policy_composer.data.recipes import RecipeError, load_recipe

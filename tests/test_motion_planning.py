@@ -396,7 +396,7 @@ def test_a_move_needs_the_gear_level_and_near_the_fingers_centre(state_env):
     """The moves' initiation set: a gear held lifted, level and within the pre-insertion tolerance of the fingers'
     centre. Tipped or pushed along the fingers (as a CNN insertion's back-offs left it), no move can bring it to the
     pre-insertion pose; only the re-grasp may start."""
-    from policy_composer.app.controller_table import start_state
+    from policy_composer.app.starts import start_state
     from policy_composer.tasks.gear_assembly.env import INSERT_TILT_DEG
 
     obs = start_state(state_env, 2, "move")
@@ -517,7 +517,7 @@ class Scripted(CachedSenses):
 def test_a_learned_controller_stops_on_its_step_budget(state_env):
     """A learned policy that never gets its subtask done stops when its step budget is spent (the paper's CNN had 50
     steps), and its activation fails saying so and what it sensed."""
-    from policy_composer.app.controller_table import start_state
+    from policy_composer.app.starts import start_state
 
     obs = start_state(state_env, 2, "move")
     stays = Stays(state_env, SUBTASKS["move"], "stays_move", max_steps=3)
@@ -530,7 +530,7 @@ def test_a_learned_controller_stops_on_its_step_budget(state_env):
 def test_a_learned_controller_stops_once_its_termination_is_sensed_steps_in_a_row(state_env):
     """One frame's percept does not end an activation: the termination must be sensed CONFIRM_STEPS observations in a
     row, and a frame that says otherwise starts the count again."""
-    from policy_composer.app.controller_table import start_state
+    from policy_composer.app.starts import start_state
 
     assert CONFIRM_STEPS == 3
     obs = start_state(state_env, 2, "move")
@@ -545,7 +545,7 @@ def test_kinematics_rule_out_a_held_gear_at_the_peg_where_the_hand_is_not(state_
     peg where the hand, by both arms' kinematics, is farther from the peg's axis than a grasped gear can be."""
     from torch import nn
 
-    from policy_composer.app.controller_table import start_state
+    from policy_composer.app.starts import start_state
     from policy_composer.selector.configuration import PredicateConfig
     from policy_composer.selector.predicates import LearnedSenses, PredicateModel
 

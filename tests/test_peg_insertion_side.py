@@ -112,3 +112,35 @@ def test_the_recorder_records_the_peg_tasks_expert_from_both_cameras(tmp_path):
     refused = run_cli("record", "peg-full-task-demos", "--clearance", "2", "--root", str(tmp_path / "no"),
                       cwd=tmp_path)
     assert refused.returncode == 2 and "PegInsertionSide-v1 has no setting clearance" in refused.stderr
+
+
+def test_the_pre_insertion_start_holds_the_peg_in_front_of_the_hole_at_step_zero(env):
+    """The insertion's start state: the reset option carries the peg to the hole unobserved, and the episode starts
+    there (step 0) with the peg grasped in front of the box, its carry's residual error left for the insertion; the
+    info's success is the strict one, ManiSkill's beside it."""
+    obs, info = env.reset(seed=5, options={"start": "pre_insertion"})
+    flags = predicates(env)
+    assert bool(flags["peg_grasped"][0]) and bool(flags["peg_at_hole"][0]) and not bool(flags["peg_inserted"][0])
+    assert int(env.unwrapped.elapsed_steps[0]) == 0 and int(info["stage"][0]) == 2
+    assert not bool(info["success"][0]) and not bool(info["success_maniskill"][0])
+    assert obs["extra"]["state"].shape == (1, 8)
+    with pytest.raises(ValueError, match="starts at 'table' or 'pre_insertion'"):
+        env.reset(seed=5, options={"start": "in_the_hole"})
+
+
+def test_the_main_job_composes_the_peg_task_through_the_generic_stages(tmp_path):
+    """`demo --task peg-insertion-side` at the smoke profile: every stage of the generic job (demonstrations,
+    DMPs, the CNN insertion and its DAgger round, rollouts, the world model with a goal scorer per camera, Table I,
+    the compositions) runs on ManiSkill's task, and the report has its rows, without the paper's gear figures."""
+    out = tmp_path / "peg"
+    result = run_cli("demo", "--profile", "smoke", "--task", "peg-insertion-side", "--out", str(out), cwd=tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    stages = [line for line in result.stdout.splitlines() if line.startswith("[") and " -> " in line]
+    assert len(stages) == 12 and stages[0].startswith("[1/12] record the insertion demonstrations"), stages
+    report = (out / "report.md").read_text()
+    assert "(PegInsertionSide-v1)" in report and "## The random-walk MDP" not in report
+    for row in ("| MP | ", "| DMP | ", "| CNN | - | - | ", "| base_camera |", "| hand_camera |",
+                "| composed (selector), sensed predicates |", "| peg_seated | "):
+        assert row in report, f"{row!r} missing from the report"
+    cnn = next(line for line in report.splitlines() if line.startswith("| CNN | "))
+    assert "/2 (95% CI " in cnn and "paper" not in report.split("## Table I")[1].split("##")[0]

@@ -21,6 +21,7 @@ from conftest import run_cli
 
 from policy_composer.app.pipeline import MARKER, Stage, run_stages
 from policy_composer.data.interrupt import flag_interrupts
+from policy_composer.tasks.registry import get_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -144,7 +145,7 @@ def test_an_interrupted_cnn_training_stage_keeps_the_policies_it_finished(insert
     out = tmp_path / "bc-cnn"
     monkeypatch.setattr(train, "train_cnn_policy", interrupted_at_the_insertion)
     with pytest.raises(KeyboardInterrupt):
-        _train_cnn(out, inputs, configs)
+        _train_cnn(out, inputs, configs, get_spec("gear-assembly"))
     move = weights_id(out / "cnn" / "move")
     assert trained == ["move"] and not (out / "cnn" / "insert").exists()
 
@@ -153,13 +154,13 @@ def test_an_interrupted_cnn_training_stage_keeps_the_policies_it_finished(insert
         return real(root, config, **kwargs)
 
     monkeypatch.setattr(train, "train_cnn_policy", counted)
-    facts = _train_cnn(out, inputs, configs)
+    facts = _train_cnn(out, inputs, configs, get_spec("gear-assembly"))
     assert trained == ["move", "insert"], "the move policy, finished before the interruption, was trained again"
     assert weights_id(out / "cnn" / "move") == move and (out / "cnn" / "insert" / "model.safetensors").exists()
     assert set(facts["timings"]) == {"CNN move policy", "CNN insert policy"} and set(facts["nll"]) == set(configs)
 
     configs["move"] = CNNPolicyConfig(subtask="move", epochs=2, num_mixtures=2, image_size=32, batch_size=32)
-    _train_cnn(out, inputs, configs)  # a policy at another config is trained again
+    _train_cnn(out, inputs, configs, get_spec("gear-assembly"))  # a policy at another config is trained again
     assert trained == ["move", "insert", "move"]
 
 
@@ -293,7 +294,7 @@ def test_the_report_states_only_its_own_runs_figures(tmp_path):
 
     out = tmp_path / "results"
     records = {"compose": StageRecord("compose", "compose", "k", out / "pipeline" / "compose-k", 60.0, False)}
-    header = _header(PROFILES["quick"], records, 60.0, out)
+    header = _header(PROFILES["quick"], records, 60.0, out, get_spec("gear-assembly"))
     assert "99/100" not in header and "20 of 20" not in header
     # Its sizes are the ones the stages train with: the insertion's own epochs and bfloat16 included.
     assert f"CNN 80 epochs, the insertion {PROFILES['quick'].insert_epochs}, in bfloat16 for the pick" in header

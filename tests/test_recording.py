@@ -213,7 +213,8 @@ def test_bad_input_is_named(insertion_demos, tmp_path):
         load_recipe("gear-nothing")
     assert available_recipes() == ["gear-controller-rollouts", "gear-full-task-demos", "gear-insertion-dagger",
                                    "gear-insertion-demos", "gear-move-dagger", "gear-transport-demos",
-                                   "peg-full-task-demos"]
+                                   "peg-controller-rollouts", "peg-full-task-demos", "peg-insertion-dagger",
+                                   "peg-insertion-demos"]
     assert load_recipe("gear-full-task-demos").splits(8) == {"train": [0, 1, 2, 3, 4], "heldout": [5, 6, 7]}
     rollouts = load_recipe("gear-controller-rollouts")
     assert rollouts.cameras == ("head", "left_forearm")

@@ -27,7 +27,7 @@ ACTION_SPACES = {"hand": 4, "joint": 8}
 SUBTASKS = ("pick", "move", "insert")
 
 
-@register_kind("cnn", label="CNN", subtasks=SUBTASKS, trained=True)
+@register_kind("cnn", label="CNN", subtasks=SUBTASKS, trained=True, demonstrated=True)
 @dataclass
 class CNNPolicyConfig(TrainingConfig):
     subtask: str = option("insert", "the subtask the policy is trained for", SUBTASKS)

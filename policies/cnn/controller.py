@@ -28,7 +28,8 @@ MAX_LEAD = 0.10
 class CNNController(LearnedController):
     """Each step: the policy's most probable action, added to the controller's running command (the policy
     predicts changes of the command) and turned into the arm's joint targets. A policy in the "hand"
-    action space moves the commanded TCP, with the hand kept pointing down, by IK from the measured joints."""
+    action space moves the commanded TCP, the hand kept at the orientation its scene says (`Scene.hand_quat`), by IK
+    from the measured joints."""
 
     def __init__(self, env, policy: CNNPolicy, subtask: Subtask | None = None, max_steps: int | None = None):
         subtask = subtask or task_of(env).subtasks[policy.config.subtask]
@@ -40,9 +41,7 @@ class CNNController(LearnedController):
 
     def reset(self, obs, seed=None):
         super().reset(obs, seed)
-        q9 = np0(self.ik.arm.robot.get_qpos())
-        solution = self.ik.solve_hand_down(self.scene.tcp(), self.scene.finger_dir(), q9)
-        self._quat = solution[0] if solution is not None else np0(self.ik.arm.tcp.pose.q)
+        self._quat = self.scene.hand_quat(self.ik, np0(self.ik.arm.robot.get_qpos()))
         self._command = self.scene.tcp() if self.policy.config.action_space == "hand" else self.arm_qpos(obs)
 
     def predict(self, obs):

@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from policy_composer.data.features import DatasetError, image_key, read_sidecar
-from policy_composer.data.frames import load_frames, random_shift
+from policy_composer.data.frames import check_distinct, load_frames, random_shift
 from policy_composer.data.recipes import check_recipe
 from policy_composer.learning.checkpoint import (
     CheckpointError,
@@ -101,16 +101,6 @@ def load_demonstrations(root: str | Path | Sequence[str | Path], config: CNNPoli
     if config.offset_weight:
         data["offset"] = frames["gear_offset"][keep]
     return data
-
-
-def check_distinct(roots: Sequence[str | Path]) -> None:
-    """Refuse a dataset listed twice: its frames would weigh twice in the training, silently."""
-    seen: dict[Path, str | Path] = {}
-    for root in roots:
-        same = seen.setdefault(Path(root).resolve(), root)
-        if same is not root:
-            raise DatasetError(f"--dataset lists {root} twice{f' (as {same})' if str(same) != str(root) else ''}: "
-                               "its frames would count twice; list each dataset once")
 
 
 def train_cnn_policy(root: str | Path | Sequence[str | Path], config: CNNPolicyConfig, out: str | Path | None = None,

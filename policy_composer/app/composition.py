@@ -103,14 +103,15 @@ class Composer:
                  video_seeds: tuple[int, ...] = (), world=None, goal_score: str = "image"):
         from policy_composer.policies.library import build_library, cameras_needed
         from policy_composer.selector.world_model import GearWorldModel
-        from policy_composer.tasks.gear_assembly.rollout import make_env
 
         # given: loaded in this process
         self.world = world if world is not None else GearWorldModel.load(models, goal_score=goal_score,
                                                                          predicates=config.senses == "learned")
         names = list(self.world.dynamics)
         cameras = tuple(dict.fromkeys((*self.world.cameras(config.senses), *cameras_needed(names, sources))))
-        self.env = make_env("rgb", resolution, clearance_mm, cameras, knock_out_step=knock_out_step)
+        task = sources.description
+        knock_out = {"knock_out_step": knock_out_step} if knock_out_step is not None else {}
+        self.env = task.make_env("rgb", task.settings(resolution, clearance_mm=clearance_mm), cameras, **knock_out)
         self.library = build_library(self.env, names, sources, self.world.senses(self.env, config.senses))
         self.config, self.out, self.video_seeds = config, out, video_seeds
 
@@ -150,6 +151,9 @@ def compose_library(models: str | Path, sources, config: ComposeConfig, seeds: l
         check_out(out, resume)  # first: a finished run in `out` is refused before anything loads
         torch.set_num_threads(1)
         world = GearWorldModel.load(models, goal_score=goal_score, predicates=config.senses == "learned")
+        if world.vae.config.task != sources.task:
+            raise RunError(f"the world model in {models} was trained for {world.vae.config.task}, not "
+                           f"{sources.task}: compose it with --task {world.vae.config.task}")
         check_models(list(world.dynamics), sources)
         ids = model_ids(list(world.dynamics), sources)
         world.check_controllers(ids)
@@ -276,7 +280,7 @@ def failure_table(episodes: list[ComposedEpisode]) -> list[str]:
     causes = failure_causes(episodes)
     if not causes:
         return []
-    return ["| last activation | episode ended | gear at the end | episodes | seeds |", "|---|---|---|---|---|"] + [
+    return ["| last activation | episode ended | part at the end | episodes | seeds |", "|---|---|---|---|---|"] + [
         f"| {what} | {ended} | {gear} | {len(seeds)} | {', '.join(map(str, seeds))} |"
         for (what, ended, gear), seeds in causes]
 

@@ -15,16 +15,16 @@ from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 
+from policy_composer.app.starts import start_state
 from policy_composer.app.stats import rate
 from policy_composer.data import atomic
 from policy_composer.policies.arm import Outcome, run_activation
 from policy_composer.policies.senses import OracleSenses
 from policy_composer.selector.predicates import LearnedSenses, load_predicates
-from policy_composer.tasks.gear_assembly.spec import SUBTASK_COLUMNS
-from policy_composer.tasks.gear_assembly.task import TASK
+from policy_composer.tasks.base import TaskDescription
+from policy_composer.tasks.registry import DEFAULT_TASK, task_of
 
-SEQUENCES = {"pick": ("pick",), "move": ("move",), "insert": ("insert",), "full": TASK.sequence}
-START_PHASE = {"move": "carry"}  # the expert phase at which a subtask's start state is taken
+SUBTASK_COLUMNS = ("pick", "move", "insert", "full")
 PAPER = {  # paper Table I; "*": stopped for safety; "-": not run
     "MP": {"pick": "10/10", "move": "10/10", "insert": "1/10", "full": "1/10"},
     "DMP": {"pick": "10/10", "move": "10/10", "insert": "1/10", "full": "1/10"},
@@ -44,43 +44,9 @@ class Cell:
         return rate(self.successes, self.trials) + (f" ({self.safety_stops}*)" if self.safety_stops else "")
 
 
-def start_state(env, seed: int, subtask: str, max_steps: int = 300):
-    """Reset to `seed` and bring the env to where `subtask` starts (see the module's docstring); returns the
-    observation.
-
-    That state may still fall outside the subtask's initiation set (a gear tilted in the grasp, or too far off the
-    peg); such a seed is replaced by seed + 1000 (up to five times), so every trial starts where the subtask may."""
-    if subtask in ("pick", "full"):
-        return env.reset(seed=seed)[0]
-    for k in range(5):
-        if subtask in ("insert", "regrasp"):
-            obs = env.reset(seed=seed + 1000 * k, options={"start": "pre_insertion"})[0]
-        else:
-            obs = _expert_until(env, seed + 1000 * k, subtask, max_steps)
-        if obs is not None and TASK.subtasks[subtask].can_start(OracleSenses(env)(obs)):
-            return obs
-    raise RuntimeError(f"no valid {subtask} start state from seed {seed} (tried five)")
-
-
-def _expert_until(env, seed: int, subtask: str, max_steps: int):
-    """Run the open-loop expert from the reset until its phase is where `subtask` starts (None if it never is)."""
-    from policy_composer.tasks.gear_assembly.expert import ExpertConfig, GearAssemblyExpert
-
-    env.reset(seed=seed)
-    expert = GearAssemblyExpert(env, ExpertConfig(closed_loop=False))
-    expert.reset(seed)
-    return env.unwrapped.observe() if expert_until(env, expert, START_PHASE[subtask], max_steps) else None
-
-
-def expert_until(env, expert, phase: str, max_steps: int) -> bool:
-    """Step the env with `expert`'s commands until the expert is in `phase` (False if it never gets there). Nothing
-    renders on the way: the expert reads the scene, not the cameras."""
-    u = env.unwrapped
-    for _ in range(max_steps):
-        if expert.phase == phase:
-            return True
-        u.step_unobserved(u.flat_to_dict_action(expert.act()))
-    return False
+def sequences(task: TaskDescription) -> dict[str, tuple[str, ...]]:
+    """What each column runs: one subtask, or the full task's in order."""
+    return {**{s: (s,) for s in task.subtasks}, "full": task.sequence}
 
 
 @dataclass(frozen=True)
@@ -95,7 +61,8 @@ def run_trial(env, controllers: dict[str, object], column: str, seed: int) -> Tr
     """One trial of a Table I cell: `controllers` (subtask -> controller) run `column`'s sequence from its start."""
     from policy_composer.policies.base import InitiationError
 
-    sequence = SEQUENCES[column]
+    task = task_of(env)
+    sequence = sequences(task)[column]
     truth = OracleSenses(env)
     obs = start_state(env, seed, column)
     outcome, why, done = Outcome.DONE, "", 0
@@ -113,7 +80,7 @@ def run_trial(env, controllers: dict[str, object], column: str, seed: int) -> Tr
         if outcome is not Outcome.DONE:
             break
         done += 1
-    ok = outcome is Outcome.DONE and (column != "full" or bool(env.unwrapped.evaluate()["success"][0]))
+    ok = outcome is Outcome.DONE and (column != "full" or bool(task.truth(env.unwrapped)[task.progress[-1]][0]))
     return Trial(ok, done if ok or done < len(sequence) else done - 1, outcome is Outcome.SAFETY_STOP,
                  "" if ok else f"seed {seed}: {why or outcome.value}")
 
@@ -125,18 +92,20 @@ class TrialRunner:
     def __init__(self, rows: dict[str, tuple[str, ...]], sources, resolution: int = 128, clearance_mm: float = 2.0,
                  predicates: str | Path | None = None):
         self.rows, self.sources, self.resolution, self.clearance_mm = rows, sources, resolution, clearance_mm
-        self.senses = LearnedSenses(load_predicates(predicates, TASK)) if predicates is not None else None
+        task = sources.description
+        self.senses = LearnedSenses(load_predicates(predicates, task)) if predicates is not None else None
         self.built: dict[str, tuple] = {}
 
     def __call__(self, item: tuple[str, str, int]) -> Trial:
         from policy_composer.policies.library import build_library, cameras_needed
-        from policy_composer.tasks.gear_assembly.rollout import make_env
 
         row, column, seed = item
         if row not in self.built:
             cameras = tuple(dict.fromkeys((*cameras_needed(self.rows[row], self.sources),
                                            *(self.senses.cameras if self.senses else ()))))
-            env = make_env("rgb" if cameras else "state_dict", self.resolution, self.clearance_mm, cameras or None)
+            task = self.sources.description
+            env = task.make_env("rgb" if cameras else "state_dict",
+                                task.settings(self.resolution, clearance_mm=self.clearance_mm), cameras or None)
             library = build_library(env, self.rows[row], self.sources, self.senses)
             self.built[row] = env, {c.subtask.name: c for c in library.values()}
         return run_trial(*self.built[row], column, seed)
@@ -162,12 +131,13 @@ def evaluate_rows(rows: dict[str, tuple[str, ...]], sources, trials: int, first_
     from policy_composer.policies.library import subtask_of
 
     torch.set_num_threads(1)
-    needed = {s for column in columns for s in SEQUENCES[column]}  # only these controllers are built and loaded
+    runs = sequences(sources.description)
+    needed = {s for column in columns for s in runs[column]}  # only these controllers are built and loaded
     rows = {row: tuple(n for n in names if subtask_of(n, sources) in needed) for row, names in rows.items()}
     items = []
     for row, names in rows.items():
         subtasks = {subtask_of(n, sources) for n in names}
-        items += [(row, column, seed) for column in columns if set(SEQUENCES[column]) <= subtasks
+        items += [(row, column, seed) for column in columns if set(runs[column]) <= subtasks
                   for seed in range(first_seed, first_seed + (column_trials or {}).get(column, trials))]
     setup = partial(TrialRunner, rows, sources, resolution, clearance_mm, predicates)
     with tqdm(total=len(items), desc=" and ".join(rows), unit="trial", disable=not progress) as bar:
@@ -200,19 +170,28 @@ def evaluate_table(kinds: list[str], sources, trials: int, first_seed: int = 0, 
     from policy_composer.policies.lerobot_policy.controller import lerobot_label
     from policy_composer.policies.library import names_of_kind
 
-    rows = {kind: names_of_kind(kind) for kind in kinds}
+    rows = {kind: names_of_kind(kind, sources.task) for kind in kinds}
     rows.update({lerobot_label(s.path): (s.controller_name,) for s in sources.lerobot})
     return evaluate_rows(rows, sources, trials, first_seed, resolution, clearance_mm, progress, workers, columns,
                          column_trials, predicates)
 
 
-def table_row(kind: str, row: dict[str, Cell]) -> str:
-    """One kind's markdown row of Table I: each cell with its interval, then the paper's."""
-    paper = PAPER.get(kind, {})
-    return f"| {kind} | " + " | ".join(f"{row[c]}; paper {paper.get(c, '-')}" for c in SUBTASK_COLUMNS) + " |"
+def paper_table(task: str) -> dict[str, dict[str, str]]:
+    """The paper's Table I where it measured the task (the gear assembly), else nothing."""
+    return PAPER if task == DEFAULT_TASK else {}
 
 
-def write_table(rows: dict[str, dict[str, Cell]], out: Path, notes: dict[str, str] | None = None) -> Path:
+def table_row(kind: str, row: dict[str, Cell], paper: dict[str, dict[str, str]] = PAPER) -> str:
+    """One kind's markdown row of Table I: each cell with its interval, then the paper's (where `paper` has the
+    task)."""
+    if not paper:
+        return f"| {kind} | " + " | ".join(str(row[c]) for c in SUBTASK_COLUMNS) + " |"
+    theirs = paper.get(kind, {})
+    return f"| {kind} | " + " | ".join(f"{row[c]}; paper {theirs.get(c, '-')}" for c in SUBTASK_COLUMNS) + " |"
+
+
+def write_table(rows: dict[str, dict[str, Cell]], out: Path, notes: dict[str, str] | None = None,
+                paper: dict[str, dict[str, str]] = PAPER) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     with atomic.replacing(out / "controllers.csv") as tmp, open(tmp, "w", newline="") as f:
         w = csv.writer(f)
@@ -220,12 +199,13 @@ def write_table(rows: dict[str, dict[str, Cell]], out: Path, notes: dict[str, st
         for kind, row in rows.items():
             for column, cell in row.items():
                 w.writerow([kind, column, cell.successes, cell.trials, cell.safety_stops,
-                            PAPER.get(kind, {}).get(column, "")])
+                            paper.get(kind, {}).get(column, "")])
     lines = ["# Controllers on each subtask (paper Table I, first rows)", "",
-             "Each cell: ours, with the Wilson 95% interval; then the paper's. `*`: stopped for safety. `-`: not run.",
+             "Each cell: ours, with the Wilson 95% interval" + ("; then the paper's" if paper else "")
+             + ". `*`: stopped for safety. `-`: not run.",
              "",
              "| controller | pick | move | insert | full task |", "|---|---|---|---|---|"]
-    lines += [table_row(kind, row) for kind, row in rows.items()]
+    lines += [table_row(kind, row, paper) for kind, row in rows.items()]
     lines += ["", "## Failures", ""]
     for kind, row in rows.items():
         for column, cell in row.items():

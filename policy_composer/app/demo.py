@@ -22,11 +22,12 @@ from policy_composer.data import interrupt
 from policy_composer.data.lock import one_writer
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 from policy_composer.selector.configuration import ComposeConfig
-from policy_composer.tasks.gear_assembly.spec import CAMERA_NAMES as CAMERAS
-from policy_composer.tasks.gear_assembly.spec import SPEC, SUBTASK_COLUMNS
+from policy_composer.tasks.base import TaskSpec
+from policy_composer.tasks.registry import DEFAULT_TASK, get_spec
 
-# The controllers that `--insertion straight` changes: the paper's open-loop insertions.
+# The controllers that `--insertion straight` changes on the gear: the paper's open-loop insertions.
 STRAIGHT = ("mp_insert", "dmp_insert")
+COLUMNS = ("pick", "move", "insert", "full")  # Table I's
 # The first seed of each CNN policy's DAgger rollouts (round K starts 1000 (K - 1) later): clear of the seeds the
 # job's tables and compositions run (and of the replacements Table I draws, seed + 1000 k).
 DAGGER_SEEDS = {"insert": 80000, "move": 90000}
@@ -70,11 +71,14 @@ class Profile:
     holds: str = ""  # which results this size supports
     elsewhere: str = ""  # figures at this size that other runs measured (the report links to them in the README)
 
-    def cnn_training(self) -> str:
-        """The CNN policies' behaviour cloning, as the job's messages and its report state it."""
-        insert = f", the insertion {self.insert_epochs}" if self.insert_epochs else ""
-        bfloat16 = f", in bfloat16 for the {', '.join(self.bfloat16_subtasks)}" if self.bfloat16_subtasks else ""
-        return f"{self.cnn_epochs} epochs{insert}{bfloat16}"
+    def cnn_training(self, subtasks: tuple[str, ...] = ("pick", "move", "insert")) -> str:
+        """The behaviour cloning of the CNN policies of `subtasks` (the task's), as the job's messages and its report
+        state it."""
+        others = [s for s in subtasks if s != "insert"]
+        epochs = (f"{self.cnn_epochs} epochs, the insertion {self.insert_epochs}" if others else
+                  f"{self.insert_epochs} epochs") if self.insert_epochs else f"{self.cnn_epochs} epochs"
+        bfloat16 = [s for s in self.bfloat16_subtasks if s in subtasks]
+        return epochs + (f", in bfloat16 for the {', '.join(bfloat16)}" if bfloat16 else "")
 
 
 PROFILES = {
@@ -120,129 +124,162 @@ PROFILES = {
 }
 
 
-def stages(p: Profile, workers: int = 1) -> list[Stage]:
-    """The main job's stages at the sizes of profile `p`; the episode loops run on `workers` processes (not in a
-    stage's key: the results are the same for any number)."""
-    from policy_composer.data.features import FEATURES_REVISION
-    from policy_composer.data.recipes import load_recipe
-    from policy_composer.policies.library import LIBRARY_REVISION, all_names
-    from policy_composer.policies.registry import kinds
-    from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, PredicateConfig, VAEConfig
+def stage_name(recipe: str) -> str:
+    """A recording stage's name: its recipe's less the task's prefix (gear-insertion-demos: insertion-demos)."""
+    return recipe.split("-", 1)[1]
+
+
+def env_key(task: str, resolution: int) -> dict:
+    """What a stage's results depend on of the env: the gear's settings and revision, or another task's name."""
+    if task != DEFAULT_TASK:
+        return {"resolution": resolution, "task": task}
     from policy_composer.tasks.gear_assembly.env import TASK_REVISION
 
-    insertion = load_recipe("gear-insertion-demos")
-    transport = load_recipe("gear-transport-demos")
-    full_task = replace(load_recipe("gear-full-task-demos"), train_episodes=p.train_demos)
-    rollouts = load_recipe("gear-controller-rollouts")
+    return {"resolution": resolution, "clearance_mm": 2.0, "task_revision": TASK_REVISION}
+
+
+def stages(p: Profile, workers: int = 1, task: str = DEFAULT_TASK) -> list[Stage]:
+    """The main job's stages for `task` at the sizes of profile `p`; the episode loops run on `workers` processes
+    (not in a stage's key: the results are the same for any number). The gear's job adds the paper's straight-down
+    insertions, the knock-out and the random-walk MDP."""
+    from policy_composer.data.features import FEATURES_REVISION
+    from policy_composer.data.recipes import load_recipe
+    from policy_composer.policies.library import LIBRARY_REVISION, LibrarySources, all_names
+    from policy_composer.policies.registry import kinds
+    from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, PredicateConfig, VAEConfig
+    from policy_composer.tasks.registry import get_task
+
+    spec, description = get_spec(task), get_task(task)
+    gear = task == DEFAULT_TASK
+    insertion_recipe = spec.demonstrations["insert"][0]
+    demo_recipes = {name: load_recipe(name)
+                    for name in dict.fromkeys((insertion_recipe, *(r for r, _ in spec.demonstrations.values())))}
+    full_task = replace(load_recipe(spec.full_task_demos), train_episodes=p.train_demos)
+    rollouts = load_recipe(spec.controller_rollouts)
     straight_rollouts = replace(rollouts, controllers=STRAIGHT)
-    cnn = {s: CNNPolicyConfig(subtask=s, epochs=(s == "insert" and p.insert_epochs) or p.cnn_epochs,
+    cnn = {s: CNNPolicyConfig(subtask=s, task=task, epochs=(s == "insert" and p.insert_epochs) or p.cnn_epochs,
                               num_mixtures=p.mixtures, image_size=p.image_size, max_steps=p.cnn_max_steps,
                               precision="bfloat16" if s in p.bfloat16_subtasks else "float32")
-           for s in ("pick", "move", "insert")}
-    dagger = {s: (load_recipe(SPEC.corrections[s]), replace(cnn[s], epochs=p.dagger_epochs)) for s in p.dagger_subtasks}
-    vae = VAEConfig(epochs=p.vae_epochs, image_size=p.image_size)
-    dynamics = DynamicsConfig(epochs=p.dynamics_epochs)
-    goal = GoalScoreConfig(epochs=p.goal_epochs, num_mixtures=p.mixtures, image_size=p.image_size)
-    predicates = PredicateConfig(epochs=p.predicate_epochs, image_size=min(PredicateConfig.image_size, p.image_size))
-    compose = ComposeConfig(horizon=p.horizon, samples=p.samples, max_steps=p.compose_max_steps)
+           for s in ("pick", "move", "insert") if s in spec.demonstrations}
+    dagger = {s: (load_recipe(spec.corrections[s]), replace(cnn[s], epochs=p.dagger_epochs))
+              for s in p.dagger_subtasks if s in spec.corrections}
+    vae = VAEConfig(task=task, epochs=p.vae_epochs, image_size=p.image_size)
+    dynamics = DynamicsConfig(task=task, epochs=p.dynamics_epochs)
+    goal = GoalScoreConfig(task=task, epochs=p.goal_epochs, num_mixtures=p.mixtures, image_size=p.image_size)
+    predicates = PredicateConfig(task=task, epochs=p.predicate_epochs,
+                                 image_size=min(PredicateConfig.image_size, p.image_size))
+    compose = ComposeConfig(horizon=p.horizon, samples=p.samples,
+                            max_steps=min(p.compose_max_steps, spec.episode_steps or p.compose_max_steps))
     sensed = replace(compose, senses="learned")
-    env = {"resolution": p.resolution, "clearance_mm": 2.0, "task_revision": TASK_REVISION}
+    env = env_key(task, p.resolution)
     # In the keys of the stages that run the controllers (the DMPs' too: they learn the planner's trajectories): a
     # changed or added controller re-runs them.
-    library = {"library_revision": LIBRARY_REVISION, "controllers": all_names()}
+    library = {"library_revision": LIBRARY_REVISION, "controllers": all_names(LibrarySources(task=task))}
     table_kinds = tuple(k.label for k in kinds().values())
     inserts = f", {p.insert_trials} per insertion" if p.insert_trials else ""
+    default = next(iter(description.insertions))  # the planned insertions' default ("feel" on the gear)
+    cameras = spec.cameras
 
     def record(recipe, episodes):
         return {"recipe": asdict(recipe), "episodes": episodes, "features_revision": FEATURES_REVISION, **env}
 
-    dagger_stages = _dagger_rounds(p, {s: (r, c, record(r, p.dagger_episodes)) for s, (r, c) in dagger.items()},
+    def record_stage(recipe, episodes: int, what: str) -> Stage:
+        return Stage(stage_name(recipe.name), f"record {what} ({episodes})", record(recipe, episodes),
+                     lambda out, _: _record(recipe, out, episodes, p.resolution, workers), resumable=True,
+                     verify=_verify_dataset)
+
+    dagger_stages = _dagger_rounds(p, spec, {s: (r, c, record(r, p.dagger_episodes)) for s, (r, c) in dagger.items()},
                                    workers)
     # What the predicate classifiers learn from: every recording of the library's and the expert's episodes that
-    # reaches the peg (the pick-up and carry demonstrations add nothing there).
-    labelled = ("controller-rollouts", "full-task-demos", "insertion-demos",
+    # reaches the part's counterpart (the gear's pick-up and carry demonstrations add nothing there).
+    labelled = ("controller-rollouts", "full-task-demos", stage_name(insertion_recipe),
                 *(s.name for s in dagger_stages if s.verify is _verify_dataset))
+    demo_stages = [stage_name(r) for r in demo_recipes]
 
     def compose_stage(name, what, config, insertion, world):
         return Stage(name, f"{what} (episodes: {p.compose_episodes})",
                      {"compose": asdict(config), "episodes": p.compose_episodes, **env, **library},
                      lambda out, i: _compose(out, i, config, list(range(p.compose_episodes)), p.resolution, None,
-                                             workers, insertion),
+                                             workers, task, insertion, world),
                      inputs=("dmp", "cnn", world), resumable=True)
 
-    return [
-        Stage("insertion-demos", f"record the insertion demonstrations ({p.insertion_demos})",
-              record(insertion, p.insertion_demos),
-              lambda out, _: _record(insertion, out, p.insertion_demos, p.resolution, workers), resumable=True,
-              verify=_verify_dataset),
-        Stage("transport-demos", f"record the pick-up and carry demonstrations ({p.transport_demos})",
-              record(transport, p.transport_demos),
-              lambda out, _: _record(transport, out, p.transport_demos, p.resolution, workers), resumable=True,
-              verify=_verify_dataset),
+    jobs = [
+        *(record_stage(r, p.insertion_demos if name == insertion_recipe else p.transport_demos,
+                       "the insertion demonstrations" if name == insertion_recipe
+                       else "the pick-up and carry demonstrations") for name, r in demo_recipes.items()),
         Stage("full-task-demos", f"record the full-task demonstrations ({p.full_task_demos}, of which "
               f"{p.train_demos} train the goal scorers)", record(full_task, p.full_task_demos),
               lambda out, _: _record(full_task, out, p.full_task_demos, p.resolution, workers), resumable=True,
               verify=_verify_dataset),
         Stage("dmp", f"fit the DMPs to the motion planner's episodes ({p.dmp_episodes})",
               {"episodes": p.dmp_episodes, "library_revision": LIBRARY_REVISION, **env},
-              lambda out, _: _fit_dmp(out, p.dmp_episodes)),
-        Stage(BC_STAGE if p.dagger_rounds else "cnn",
-              f"train the CNN policies on the demonstrations: pick, move, insert ({p.cnn_training()})",
+              lambda out, _: _fit_dmp(out, p.dmp_episodes, task, p.resolution)),
+        Stage(BC_STAGE if dagger_stages else "cnn",
+              f"train the CNN policies on the demonstrations: {', '.join(cnn)} ({p.cnn_training(tuple(cnn))})",
               {s: asdict(c) for s, c in cnn.items()},
-              lambda out, i: _train_cnn(out, i, cnn), inputs=("insertion-demos", "transport-demos"), resumable=True),
+              lambda out, i: _train_cnn(out, i, cnn, spec), inputs=tuple(demo_stages), resumable=True),
         *dagger_stages,
         Stage("controller-rollouts", f"record rollouts of each controller ({p.rollouts} each)",
               {**record(rollouts, p.rollouts), **library},
-              lambda out, i: _record(rollouts, out, p.rollouts, p.resolution, workers, _sources(i)),
+              lambda out, i: _record(rollouts, out, p.rollouts, p.resolution, workers, _sources(i, task)),
               inputs=("dmp", "cnn"), resumable=True, verify=_verify_dataset),
         Stage("world-model", "train the VAE, the dynamics models, the goal scorers and the predicate classifiers",
-              {"vae": asdict(vae), "dynamics": asdict(dynamics), "goal": asdict(goal), "cameras": CAMERAS,
+              {"vae": asdict(vae), "dynamics": asdict(dynamics), "goal": asdict(goal), "cameras": cameras,
                "predicates": asdict(predicates)},
-              lambda out, i: _train_world(out, i, vae, dynamics, goal, predicates, labelled),
+              lambda out, i: _train_world(out, i, vae, dynamics, goal, predicates, labelled, cameras),
               inputs=tuple(dict.fromkeys(("controller-rollouts", "full-task-demos", *labelled))), resumable=True),
         Stage("goal-score", "evaluate the goal score of each camera on the held-out demonstrations",
-              {"cameras": CAMERAS},
-              lambda out, i: _evaluate_goal(out, i), inputs=("world-model", "full-task-demos")),
+              {"cameras": cameras},
+              lambda out, i: _evaluate_goal(out, i, cameras), inputs=("world-model", "full-task-demos")),
         Stage("table", f"Table I: each controller kind on each subtask ({p.table_trials} per cell{inserts})",
               {"trials": p.table_trials, "insert_trials": p.insert_trials, "kinds": table_kinds, **env, **library},
-              lambda out, i: _table(out, i, p, table_kinds, workers), inputs=("dmp", "cnn")),
+              lambda out, i: _table(out, i, p, table_kinds, workers, task), inputs=("dmp", "cnn")),
+    ]
+    if gear:
         # The paper's Table I as the paper got it: the MP and DMP insertions go straight down once
         # (`--insertion straight`); their rollouts and dynamics models are recorded and trained again for it.
-        Stage("straight-rollouts", f"record rollouts of the straight-down insertions ({p.rollouts} each)",
-              {**record(straight_rollouts, p.rollouts), **library},
-              lambda out, i: _record(straight_rollouts, out, p.rollouts, p.resolution, workers,
-                                     _sources(i, "straight")),
-              inputs=("dmp", "cnn"), resumable=True, verify=_verify_dataset),
-        Stage("straight-world-model", "train the straight-down insertions' dynamics models",
-              {"dynamics": asdict(dynamics), "controllers": STRAIGHT},
-              lambda out, i: _train_straight(out, i, dynamics),
-              inputs=("world-model", "straight-rollouts", "full-task-demos")),
-        Stage("straight-table", f"Table I with the straight-down insertions: MP and DMP ({p.table_trials} per "
-              f"cell{inserts})", {"trials": p.table_trials, "insert_trials": p.insert_trials, **env, **library},
-              lambda out, i: _table(out, i, p, ("MP", "DMP"), workers, "straight", ("insert", "full")),
-              inputs=("dmp", "cnn")),
-        compose_stage("straight-compose", "compose the library with the straight-down insertions", compose,
-                      "straight", "straight-world-model"),
-        compose_stage("sensed-straight-compose", "compose it again on the predicate classifiers", sensed,
-                      "straight", "straight-world-model"),
-        compose_stage("compose", "compose the library with the selector", compose, "feel", "world-model"),
-        compose_stage("sensed-compose", "compose it again on the predicate classifiers", sensed, "feel",
+        jobs += [
+            Stage("straight-rollouts", f"record rollouts of the straight-down insertions ({p.rollouts} each)",
+                  {**record(straight_rollouts, p.rollouts), **library},
+                  lambda out, i: _record(straight_rollouts, out, p.rollouts, p.resolution, workers,
+                                         _sources(i, task, "straight")),
+                  inputs=("dmp", "cnn"), resumable=True, verify=_verify_dataset),
+            Stage("straight-world-model", "train the straight-down insertions' dynamics models",
+                  {"dynamics": asdict(dynamics), "controllers": STRAIGHT},
+                  lambda out, i: _train_straight(out, i, dynamics),
+                  inputs=("world-model", "straight-rollouts", "full-task-demos")),
+            Stage("straight-table", f"Table I with the straight-down insertions: MP and DMP ({p.table_trials} per "
+                  f"cell{inserts})", {"trials": p.table_trials, "insert_trials": p.insert_trials, **env, **library},
+                  lambda out, i: _table(out, i, p, ("MP", "DMP"), workers, task, "straight", ("insert", "full")),
+                  inputs=("dmp", "cnn")),
+            compose_stage("straight-compose", "compose the library with the straight-down insertions", compose,
+                          "straight", "straight-world-model"),
+            compose_stage("sensed-straight-compose", "compose it again on the predicate classifiers", sensed,
+                          "straight", "straight-world-model"),
+        ]
+    jobs += [
+        compose_stage("compose", "compose the library with the selector", compose, default, "world-model"),
+        compose_stage("sensed-compose", "compose it again on the predicate classifiers", sensed, default,
                       "world-model"),
-        Stage("knock-out", f"recovery from the gear knocked out of the gripper (episodes: {p.knockout_episodes})",
-              {"compose": asdict(compose), "episodes": p.knockout_episodes, "knock_out_step": 100, **env,
-               **library},
-              lambda out, i: _compose(out, i, compose, list(range(100, 100 + p.knockout_episodes)), p.resolution,
-                                       100, workers),
-              inputs=("dmp", "cnn", "world-model"), resumable=True),
-        Stage("mdp", "the random-walk MDP experiments (19 and 100 states)",
-              {"episodes_19": p.mdp_episodes_19, "episodes_100": p.mdp_episodes_100, "levels": p.mdp_levels},
-              lambda out, _: _mdp(out, p)),
     ]
+    if gear:
+        jobs += [
+            Stage("knock-out", f"recovery from the gear knocked out of the gripper (episodes: {p.knockout_episodes})",
+                  {"compose": asdict(compose), "episodes": p.knockout_episodes, "knock_out_step": 100, **env,
+                   **library},
+                  lambda out, i: _compose(out, i, compose, list(range(100, 100 + p.knockout_episodes)), p.resolution,
+                                           100, workers, task, default, "world-model"),
+                  inputs=("dmp", "cnn", "world-model"), resumable=True),
+            Stage("mdp", "the random-walk MDP experiments (19 and 100 states)",
+                  {"episodes_19": p.mdp_episodes_19, "episodes_100": p.mdp_episodes_100, "levels": p.mdp_levels},
+                  lambda out, _: _mdp(out, p)),
+        ]
+    return jobs
 
 
-def run_demo(profile: str = "quick", out: str | Path = "results",
-             workers: int = 1) -> tuple[dict[str, StageRecord], Path]:
-    """Run (or reuse) every stage under `out`/pipeline, then write `out`/report.md and report.html."""
+def run_demo(profile: str = "quick", out: str | Path = "results", workers: int = 1,
+             task: str = DEFAULT_TASK) -> tuple[dict[str, StageRecord], Path]:
+    """Run (or reuse) every stage of `task`'s job under `out`/pipeline, then write `out`/report.md and report.html."""
     from policy_composer.app.report import write_report
 
     if profile not in PROFILES:
@@ -251,12 +288,12 @@ def run_demo(profile: str = "quick", out: str | Path = "results",
     out = Path(out)
     t0 = time.perf_counter()
     with one_writer(out):  # a second main job into the same folder stops at once
-        records = run_stages(stages(p, workers), out / "pipeline")
-        report = write_report(out, p, records, time.perf_counter() - t0)
+        records = run_stages(stages(p, workers, task), out / "pipeline")
+        report = write_report(out, p, records, time.perf_counter() - t0, get_spec(task))
     return records, report
 
 
-def _dagger_rounds(p: Profile, subtasks: dict[str, tuple], workers: int) -> list[Stage]:
+def _dagger_rounds(p: Profile, spec: TaskSpec, subtasks: dict[str, tuple], workers: int) -> list[Stage]:
     """DAgger for the CNN policies of `subtasks` (subtask -> its corrections recipe, training config and recording
     key), `p.dagger_rounds` times: record each last policy's rollouts labelled by the expert (`insertion-dagger-K`,
     `move-dagger-K`), then train each anew on its demonstrations and every round's rollouts. The last round's model
@@ -264,15 +301,16 @@ def _dagger_rounds(p: Profile, subtasks: dict[str, tuple], workers: int) -> list
     stages, policy, rollouts = [], BC_STAGE, {s: () for s in subtasks}
     for k in range(1, p.dagger_rounds + 1):
         for s, (recipe, _, key) in subtasks.items():
-            seed, name = DAGGER_SEEDS[s] + 1000 * (k - 1), f"{recipe.name.removeprefix('gear-')}-{k}"
+            seed, name = DAGGER_SEEDS[s] + 1000 * (k - 1), f"{stage_name(recipe.name)}-{k}"
             rollouts[s] += (name,)
             stages.append(Stage(name, f"record the CNN {s} policy's rollouts labelled by the expert (DAgger round {k}, "
                                 f"{p.dagger_episodes})", {**key, "seed": seed},
-                                partial(_dagger_record, recipe, p, workers, policy, seed), inputs=(policy,),
+                                partial(_dagger_record, recipe, p, workers, policy, seed, spec.name),
+                                inputs=(policy,),
                                 resumable=True, verify=_verify_dataset))
         trained = "cnn" if k == p.dagger_rounds else f"dagger-cnn-{k}"
         configs = {s: config for s, (_, config, _) in subtasks.items()}
-        datasets = {s: (SPEC.demonstrations[s][0].removeprefix("gear-"), *rollouts[s]) for s in subtasks}
+        datasets = {s: (stage_name(spec.demonstrations[s][0]), *rollouts[s]) for s in subtasks}
         stages.append(Stage(trained, f"train the CNN {', '.join(subtasks)} policies on their demonstrations and {k} "
                             f"round(s) of the expert's corrections ({p.dagger_epochs} epochs)",
                             {s: asdict(c) for s, c in configs.items()},
@@ -283,22 +321,21 @@ def _dagger_rounds(p: Profile, subtasks: dict[str, tuple], workers: int) -> list
     return stages
 
 
-def _dagger_record(recipe, p: Profile, workers: int, policy: str, seed: int, out: Path,
+def _dagger_record(recipe, p: Profile, workers: int, policy: str, seed: int, task: str, out: Path,
                    inputs: dict[str, Path]) -> dict:
-    return _record(recipe, out, p.dagger_episodes, p.resolution, workers, _sources(inputs, cnn=policy), seed)
+    return _record(recipe, out, p.dagger_episodes, p.resolution, workers, _sources(inputs, task, cnn=policy), seed)
 
 
 def _record(recipe, out: Path, episodes: int, resolution: int, workers: int, sources=None, seed: int = 0) -> dict:
     from policy_composer.app.record import record_recipe
     from policy_composer.data.catalog import summarize
-    from policy_composer.tasks.gear_assembly.spec import EnvSettings
 
     root = out / "dataset"
     resume = (root / "meta" / "info.json").exists()
     if root.exists() and not resume:  # interrupted before its first episode was saved
         shutil.rmtree(root)
     record_recipe(recipe, root, episodes=episodes, seed=None if resume else seed, resume=resume,
-                  settings=EnvSettings(resolution=resolution), sources=sources, workers=workers)
+                  settings=recipe.spec.env_settings(resolution=resolution), sources=sources, workers=workers)
     s = summarize(root)
     return {"episodes": s["episodes"], "frames": s["frames"], "outcomes": s["outcomes"], "workers": workers}
 
@@ -311,22 +348,23 @@ def _verify_dataset(out: Path) -> None:
         verify_dataset(out / "dataset")
 
 
-def _sources(inputs: dict[str, Path], insertion: str = "feel", cnn: str = "cnn"):
-    """The library's models from the stages' outputs: the DMPs, and the CNN policies of stage `cnn`."""
+def _sources(inputs: dict[str, Path], task: str, insertion: str = "", cnn: str = "cnn"):
+    """The task's library, its models from the stages' outputs: the DMPs, and the CNN policies of stage `cnn`."""
     from policy_composer.policies.library import LibrarySources
 
     models = {"cnn": str(inputs[cnn] / "cnn")}
     if "dmp" in inputs:
         models["dmp"] = str(inputs["dmp"] / "dmp")
-    return LibrarySources(models=models, insertion=insertion)
+    return LibrarySources(models=models, insertion=insertion, task=task)
 
 
-def _fit_dmp(out: Path, episodes: int) -> dict:
+def _fit_dmp(out: Path, episodes: int, task: str, resolution: int) -> dict:
     from policy_composer.policies.dmp.configuration_dmp import FIT_FIRST_SEED
     from policy_composer.policies.dmp.controller import fit_dmp_library
-    from policy_composer.tasks.gear_assembly.rollout import make_env
+    from policy_composer.tasks.registry import get_task
 
-    env = make_env("state_dict")
+    description = get_task(task)
+    env = description.make_env("state_dict", description.spec.env_settings(resolution=resolution))
     try:
         fit_dmp_library(env, seeds=list(range(FIT_FIRST_SEED, FIT_FIRST_SEED + episodes))).save(out / "dmp")
     finally:
@@ -334,9 +372,9 @@ def _fit_dmp(out: Path, episodes: int) -> dict:
     return {"episodes": episodes}
 
 
-def _train_cnn(out: Path, inputs: dict[str, Path], configs: dict) -> dict:
+def _train_cnn(out: Path, inputs: dict[str, Path], configs: dict, spec: TaskSpec) -> dict:
     """One CNN policy per subtask, in the library's CNN model folder (out/cnn/SUBTASK)."""
-    demos = {s: [inputs[SPEC.demonstrations[s][0].removeprefix("gear-")] / "dataset"] for s in configs}
+    demos = {s: [inputs[stage_name(spec.demonstrations[s][0])] / "dataset"] for s in configs}
     return _train_policies(out, configs, demos, {s: f"CNN {s} policy" for s in configs})
 
 
@@ -373,7 +411,8 @@ def _train_policies(out: Path, configs: dict[str, CNNPolicyConfig], datasets: di
     return {"timings": timings, "nll": nll}
 
 
-def _train_world(out: Path, inputs: dict[str, Path], vae, dynamics, goal, predicates, labelled) -> dict:
+def _train_world(out: Path, inputs: dict[str, Path], vae, dynamics, goal, predicates, labelled,
+                 cameras: tuple[str, ...]) -> dict:
     import torch
 
     from policy_composer.selector.train import train_goal_scores, train_predicate_models, train_world_model
@@ -381,7 +420,7 @@ def _train_world(out: Path, inputs: dict[str, Path], vae, dynamics, goal, predic
     torch.set_num_threads(2)
     rollouts, demos = inputs["controller-rollouts"] / "dataset", inputs["full-task-demos"] / "dataset"
     timings = train_world_model(rollouts, demos, out / "world", vae, dynamics, resume=True)
-    timings.update(train_goal_scores(demos, out / "world", CAMERAS, goal, resume=True))
+    timings.update(train_goal_scores(demos, out / "world", cameras, goal, resume=True))
     figures = train_predicate_models([inputs[n] / "dataset" for n in labelled], out / "world", predicates,
                                      resume=True)
     timings.update({f"predicate {name}": f.pop("seconds") for name, f in figures.items()})
@@ -405,20 +444,21 @@ def _train_straight(out: Path, inputs: dict[str, Path], dynamics) -> dict:
     return {"timings": timings}
 
 
-def _evaluate_goal(out: Path, inputs: dict[str, Path]) -> dict:
+def _evaluate_goal(out: Path, inputs: dict[str, Path], cameras: tuple[str, ...]) -> dict:
     from policy_composer.selector.evaluate import evaluate_goal_scores
 
-    metrics = evaluate_goal_scores(inputs["world-model"] / "world", inputs["full-task-demos"] / "dataset", out, CAMERAS)
+    metrics = evaluate_goal_scores(inputs["world-model"] / "world", inputs["full-task-demos"] / "dataset", out, cameras)
     return {"metrics": metrics}
 
 
-def _table(out: Path, inputs: dict[str, Path], p: Profile, kinds: tuple[str, ...], workers: int,
-           insertion: str = "feel", columns: tuple[str, ...] = SUBTASK_COLUMNS) -> dict:
-    from policy_composer.app.controller_table import evaluate_table, write_table
+def _table(out: Path, inputs: dict[str, Path], p: Profile, kinds: tuple[str, ...], workers: int, task: str,
+           insertion: str = "", columns: tuple[str, ...] = COLUMNS) -> dict:
+    from policy_composer.app.controller_table import evaluate_table, paper_table, write_table
 
-    rows = evaluate_table(list(kinds), _sources(inputs, insertion), p.table_trials, 0, p.resolution, workers=workers,
+    rows = evaluate_table(list(kinds), _sources(inputs, task, insertion), p.table_trials, 0, p.resolution,
+                          workers=workers,
                           columns=columns, column_trials={"insert": p.insert_trials or p.table_trials})
-    write_table(rows, out)
+    write_table(rows, out, paper=paper_table(task))
     return {"workers": workers,
             "rows": {kind: {c: [cell.successes, cell.trials, cell.safety_stops] for c, cell in row.items()}
                      for kind, row in rows.items()},
@@ -426,11 +466,11 @@ def _table(out: Path, inputs: dict[str, Path], p: Profile, kinds: tuple[str, ...
 
 
 def _compose(out: Path, inputs: dict[str, Path], config, seeds: list[int], resolution: int,
-             knock_out_step: int | None, workers: int, insertion: str = "feel") -> dict:
+             knock_out_step: int | None, workers: int, task: str, insertion: str, world: str) -> dict:
     from policy_composer.app.composition import compose_library
 
-    world = inputs["straight-world-model" if insertion == "straight" else "world-model"] / "world"
-    episodes = compose_library(world, _sources(inputs, insertion), config, seeds, out, videos=1,
+    episodes = compose_library(inputs[world] / "world", _sources(inputs, task, insertion), config, seeds, out,
+                               videos=1,
                                resolution=resolution, knock_out_step=knock_out_step, resume=True,
                                workers=workers)
     return {"successes": [e.success for e in episodes], "knocked_out": [e.knocked_out for e in episodes],

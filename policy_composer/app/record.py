@@ -14,10 +14,12 @@ from dataclasses import asdict, dataclass, replace
 from functools import partial
 from pathlib import Path
 
+from policy_composer.app.starts import expert_until, start_state
 from policy_composer.data import interrupt, journal
 from policy_composer.data.features import read_sidecar
 from policy_composer.data.lock import one_writer
 from policy_composer.data.recipes import Recipe, RecipeError
+from policy_composer.policies.arm import run_activation
 from policy_composer.policies.library import (
     LibrarySources,
     all_names,
@@ -42,7 +44,8 @@ class RecordedEpisode:
 
 def recipe_controllers(recipe: Recipe) -> tuple[str, ...]:
     """The controllers a recipe runs: the ones it names, or for the "controllers" driver every registered kind's."""
-    return (recipe.controllers or all_names()) if recipe.driver == "controllers" else recipe.controllers
+    every = all_names(LibrarySources(task=recipe.task_name))
+    return (recipe.controllers or every) if recipe.driver == "controllers" else recipe.controllers
 
 
 def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None, seed: int | None = None,
@@ -65,7 +68,10 @@ def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None,
     torch.set_num_threads(1)  # the encoder threads need the second core
     root = Path(root)
     with one_writer(root):  # a second recording into it stops at once
-        sources = sources or LibrarySources()
+        sources = sources or LibrarySources(task=recipe.task_name)
+        if sources.task != recipe.task_name:
+            raise RecipeError(f"recipe {recipe.name} records {recipe.task_name}, but its controllers' models are "
+                              f"given for {sources.task}: give the models of {recipe.task_name}'s library")
         controllers = recipe_controllers(recipe)
         check_models(controllers, sources)
         models = model_ids(controllers, sources)
@@ -208,13 +214,11 @@ class EpisodeRecorder:
         scripted expert gives in that state. The episode ends where the activation does, with the frame it ended in
         (where the policy's command collided, say); a back-off is left out after its first step, since the
         controller does not choose it (its guard does)."""
-        from policy_composer.app.controller_table import START_PHASE, expert_until
-
         recipe, buffer, expert = self.recipe, self.buffer, self.expert
         controller = self.library[recipe.controllers[0]]
         obs, _ = buffer.reset(seed=seed, options=recipe.reset_options())
         expert.reset(seed)
-        phase = START_PHASE.get(controller.subtask.name)
+        phase = buffer.task.expert_starts.get(controller.subtask.name)
         if phase is not None:  # the expert takes the arm, unrecorded, to where the controller's subtask starts
             if not expert_until(buffer, expert, phase, episode_limit(buffer)):
                 return None
@@ -239,9 +243,6 @@ class EpisodeRecorder:
     def _controller(self, controller, seed: int) -> RecordedEpisode | None:
         """One activation of `controller` from a start state inside its initiation set (the open-loop expert run,
         unrecorded, up to where the controller's subtask begins); failures are kept."""
-        from policy_composer.app.controller_table import start_state
-        from policy_composer.policies.arm import run_activation
-
         buffer = self.buffer
         buffer.recording = False
         obs = start_state(buffer, seed, controller.subtask.name)

@@ -20,19 +20,24 @@ from policy_composer.app.composition import (
     sequence_counts,
     served_table,
 )
-from policy_composer.app.controller_table import Cell, table_row
+from policy_composer.app.controller_table import Cell, paper_table, table_row
 from policy_composer.app.pipeline import StageRecord
 from policy_composer.app.stats import rate
 from policy_composer.data import atomic
 from policy_composer.selector.compose import ComposedEpisode
+from policy_composer.tasks.base import TaskSpec
+from policy_composer.tasks.registry import DEFAULT_TASK, get_spec
 
 ASSETS = "report"  # folder beside report.md with the figures and videos it shows
 PAPER_CAMERAS = ("the head camera does not see the fine details of the movement which the forearm cameras do, "
                  "leading to a closer to goal score")
 
 
-def write_report(out: Path, profile, records: dict[str, StageRecord], wall_seconds: float) -> Path:
-    """Write report.md and report.html in `out`; returns report.md's path."""
+def write_report(out: Path, profile, records: dict[str, StageRecord], wall_seconds: float,
+                 spec: TaskSpec | None = None) -> Path:
+    """Write report.md and report.html in `out` for the main job of the task of `spec` (default: the gear's); returns
+    report.md's path. The gear's job has the paper's straight-down insertions, the knock-out and the MDP besides."""
+    spec = spec or get_spec(DEFAULT_TASK)
     assets = out / ASSETS
     if assets.exists():
         shutil.rmtree(assets)
@@ -48,24 +53,25 @@ def write_report(out: Path, profile, records: dict[str, StageRecord], wall_secon
     def link(stage: str, name: str) -> str:
         return os.path.relpath(records[stage].folder / name, out)
 
-    composed = load_episodes(records["compose"].folder)
-    knocked = load_episodes(records["knock-out"].folder)
-    straight = load_episodes(records["straight-compose"].folder)
-    sensed = load_episodes(records["sensed-compose"].folder)
-    sensed_straight = load_episodes(records["sensed-straight-compose"].folder)
+    def episodes(stage: str) -> list[ComposedEpisode]:
+        return load_episodes(records[stage].folder) if stage in records else []
+
+    composed, knocked, straight = episodes("compose"), episodes("knock-out"), episodes("straight-compose")
+    sensed, sensed_straight = episodes("sensed-compose"), episodes("sensed-straight-compose")
     sections = [
-        _header(profile, records, wall_seconds, out),
+        _header(profile, records, wall_seconds, out, spec),
         _senses(records["world-model"].facts.get("predicates", {})),
-        _papers_table(records, straight, sensed_straight, link,
-                      *(asset("straight-compose", f"composed_seed{straight[0].seed}{name}", f"straight{name}")
-                        if straight else None for name in (".mp4", "_goal_score.png"))),
-        _table_one(records, composed, sensed, knocked, link),
+        *([_papers_table(records, straight, sensed_straight, link,
+                         *(asset("straight-compose", f"composed_seed{straight[0].seed}{name}", f"straight{name}")
+                           if straight else None for name in (".mp4", "_goal_score.png")))]
+          if "straight-table" in records else []),
+        _table_one(records, composed, sensed, knocked, link, "straight-table" in records, paper_table(spec.name)),
         _composition(composed, asset("compose", f"composed_seed{composed[0].seed}.mp4", "composed.mp4")
                      if composed else None,
                      asset("knock-out", f"composed_seed{knocked[0].seed}.mp4", "knock_out.mp4") if knocked else None),
-        _goal_score(records["goal-score"], asset("goal-score", "goal_score.png")),
-        _mdp(records["mdp"], [asset("mdp", f) for f in ("mdp19_solution.png", "mdp100_heatmap_lookahead.png",
-                                                          "mdp100_heatmap_step.png")]),
+        _goal_score(records["goal-score"], asset("goal-score", "goal_score.png"), spec),
+        *([_mdp(records["mdp"], [asset("mdp", f) for f in ("mdp19_solution.png", "mdp100_heatmap_lookahead.png",
+                                                             "mdp100_heatmap_step.png")])] if "mdp" in records else []),
         _timings(records, wall_seconds),
         _machine(),
     ]
@@ -93,13 +99,14 @@ th {{ background: #f2f2f2; }} img, video {{ max-width: 100%; }} code {{ backgrou
 """
 
 
-def _header(profile, records: dict[str, StageRecord], wall_seconds: float, out: Path) -> str:
+def _header(profile, records: dict[str, StageRecord], wall_seconds: float, out: Path, spec: TaskSpec) -> str:
+    cnn = tuple(s for s in ("pick", "move", "insert") if s in spec.demonstrations)
     ran = [r for r in records.values() if not r.reused]
     readme = Path(__file__).resolve().parents[2] / "README.md"
     where = f"[the README's main-job section]({os.path.relpath(readme, out)}#the-main-job)" if readme.exists() else \
         "the main-job section of policy-composer's README"
     return "\n".join([
-        "# Composing diverse policies: the paper reproduced on this machine", "",
+        f"# Composing diverse policies: the paper reproduced on this machine ({spec.env_id})", "",
         f"Profile `{profile.name}`, written {time.strftime('%Y-%m-%d %H:%M')}. This run took "
         f"{wall_seconds / 60:.1f} min: {len(ran)} of {len(records)} stages ran"
         + (", the others were reused from an earlier run with the same settings; all stages together took "
@@ -109,10 +116,12 @@ def _header(profile, records: dict[str, StageRecord], wall_seconds: float, out: 
         f"**What holds at this size.** {profile.holds}", "",
         *([f"**Measured elsewhere, not by this run:** {profile.elsewhere}, in {where}.", ""]
           if profile.elsewhere else []),
-        f"Sizes: {profile.insertion_demos} insertion and {profile.transport_demos} pick-up and carry demonstrations, "
+        f"Sizes: {profile.insertion_demos} insertion demonstrations"
+        + (f" and {profile.transport_demos} pick-up and carry demonstrations" if "transport-demos" in records else "")
+        + ", "
         f"{profile.train_demos} full-task demonstrations "
         f"for the goal scorers ({profile.full_task_demos - profile.train_demos} held out), {profile.rollouts} rollouts "
-        f"per controller, CNN {profile.cnn_training()}{_dagger(profile)}, {profile.mixtures} mixtures, "
+        f"per controller, CNN {profile.cnn_training(cnn)}{_dagger(profile, cnn)}, {profile.mixtures} mixtures, "
         f"selector n = {profile.horizon}, "
         f"K = {profile.samples}, cameras at {profile.resolution} px (models see {profile.image_size} px)."])
 
@@ -124,7 +133,7 @@ def _senses(figures: dict[str, dict]) -> str:
              "from the simulator's truth (`--senses oracle`); each activation is judged on the truth. The composed "
              "rows run the same seeds twice: on those oracle predicates, and on the predicate classifiers of the "
              "cameras and joints, what a robot senses (`--senses learned`). In both, the pick-up's planner is given "
-             "the gear's position on the table, the task's one privileged input."]
+             "the part's position on the table, the task's one privileged input."]
     if figures:
         some = next(iter(figures.values()))
         lines += ["", f"The classifiers on {some['frames']} frames of held-out episodes (every fifth of each "
@@ -135,10 +144,11 @@ def _senses(figures: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
-def _dagger(profile) -> str:
-    if not profile.dagger_rounds:
+def _dagger(profile, cnn: tuple[str, ...]) -> str:
+    trained = [s for s in profile.dagger_subtasks if s in cnn]
+    if not profile.dagger_rounds or not trained:
         return ""
-    return (f" (then {profile.dagger_rounds} DAgger round(s) for the {' and '.join(profile.dagger_subtasks)}: "
+    return (f" (then {profile.dagger_rounds} DAgger round(s) for the {' and '.join(trained)}: "
             f"{profile.dagger_episodes} of each policy's rollouts labelled by the expert, and "
             f"{profile.dagger_epochs} epochs on them and its demonstrations)")
 
@@ -149,14 +159,15 @@ def _rows(record: StageRecord) -> dict[str, dict[str, Cell]]:
             for kind, row in record.facts["rows"].items()}
 
 
-def _composed_rows(oracle: list[ComposedEpisode], sensed: list[ComposedEpisode]) -> list[str]:
+def _composed_rows(oracle: list[ComposedEpisode], sensed: list[ComposedEpisode], paper: bool = True) -> list[str]:
     """Table I's composed rows, on the oracle's predicates and on the sensed ones (the first 10 seeds, as the paper
     ran), and the rates over all seeds if more ran."""
     lines, more = [], []
     for channel, composed in (("oracle", oracle), ("sensed", sensed)):
         first = composed[:10]
         lines += [f"| composed (selector), {channel} predicates | - | - | - | "
-                  f"{rate(sum(e.success for e in first), len(first))}; paper {PAPER_COMPOSED} |"]
+                  f"{rate(sum(e.success for e in first), len(first))}"
+                  + (f"; paper {PAPER_COMPOSED} |" if paper else " |")]
         if len(composed) > len(first):
             more += [f"Composed over {len(composed)} seeds on {channel} predicates: "
                      f"{rate(sum(e.success for e in composed), len(composed))} full-task successes "
@@ -199,14 +210,17 @@ def _video(src: str, title: str, after: str) -> list[str]:
 
 
 def _table_one(records, composed: list[ComposedEpisode], sensed: list[ComposedEpisode],
-               knocked: list[ComposedEpisode], link) -> str:
-    lines = ["## Table I beyond the paper: planned insertions that feel for the hole", "",
+               knocked: list[ComposedEpisode], link, beyond: bool, paper: dict) -> str:
+    intro = ["## Table I beyond the paper: planned insertions that feel for the hole", "",
              "The MP and DMP insertions try offsets around the hole until the gear goes down (the project's default). "
-             "Each cell: ours, with the Wilson 95% interval; then the paper's. `*`: stopped for safety. `-`: not run. "
+             ] if beyond else ["## Table I", "", "The planned insertions push along the hole's axis once, open loop. "]
+    lines = [*intro[:-1], intro[-1] +
+             "Each cell: ours, with the Wilson 95% interval" + ("; then the paper's" if paper else "")
+             + ". `*`: stopped for safety. `-`: not run. "
              f"Start states, failures: [controllers.md]({link('table', 'controllers.md')}).", "",
              "| controller | pick | move | insert | full task |", "|---|---|---|---|---|"]
-    lines += [table_row(kind, row) for kind, row in _rows(records["table"]).items()]
-    lines += _composed_rows(composed, sensed)
+    lines += [table_row(kind, row, paper) for kind, row in _rows(records["table"]).items()]
+    lines += _composed_rows(composed, sensed, bool(paper))
     completed = records["table"].facts.get("completed", {})
     lines += ["", "Progressive completion of the full task: how many trials got at least this far.", "",
               "| controller | progressive completion |", "|---|---|"]
@@ -252,10 +266,11 @@ def _composition(composed: list[ComposedEpisode], video: str | None, knock_video
     return "\n".join(lines)
 
 
-def _goal_score(record: StageRecord, figure: str | None) -> str:
+def _goal_score(record: StageRecord, figure: str | None, spec: TaskSpec) -> str:
     metrics = record.facts["metrics"]
     ranked = sorted((c for c in metrics if c != "latent"), key=lambda c: -metrics[c]["spearman"])
-    forearm_best = ranked[0] != "head"
+    on_arm_best = ranked[0] not in spec.fixed_cameras
+    fixed = " and ".join(spec.fixed_cameras) or "fixed"
     lines = ["## Goal score per camera", ""]
     if figure:
         lines += [f"![goal score per camera]({figure})", ""]
@@ -263,9 +278,9 @@ def _goal_score(record: StageRecord, figure: str | None) -> str:
     lines += [f"| {c} | {m['spearman']:.3f} | {m['mae']:.3f} |" for c, m in metrics.items()]
     some = next(iter(metrics.values()))
     lines += ["", f"On {some['episodes']} held-out demonstrations the {ranked[0]} camera tracks progress best. "
-              f"The paper: \"{PAPER_CAMERAS}\". Ours " + ("agrees: a forearm camera ranks above the head camera."
-                                                         if forearm_best else
-                                                         "disagrees: the head camera ranks first here.")]
+              f"The paper: \"{PAPER_CAMERAS}\". Ours " + (f"agrees: a camera on the arm ranks above the {fixed} camera."
+                                                         if on_arm_best else
+                                                         f"disagrees: the {fixed} camera ranks first here.")]
     if "latent" in metrics:
         lines += ["", "Row `latent` is the goal score of the VAE's latents of its camera's frames, which scores the "
                       "selector's predictions without decoding them (`compose --goal-score latent`)."]

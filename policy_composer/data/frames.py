@@ -7,12 +7,13 @@ goal scorers) loads its data through `load_frames`, so the checks of `open_datas
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import torch
 import torch.nn.functional as F
 
-from policy_composer.data.features import image_key, open_dataset
+from policy_composer.data.features import DatasetError, image_key, open_dataset
 
 LABELS = ("observation.state", "action", "progress", "stage", "gear_offset", "predicates", "controller",
           "episode_index", "frame_index")
@@ -63,6 +64,16 @@ def load_frames(root: str | Path, cameras: tuple[str, ...], size: int, episodes:
                 v = batch[k]
                 parts.setdefault(k, []).append(v.reshape(len(v)) if v.dim() == 2 and v.shape[1] == 1 else v)
     return {k: torch.cat(v) for k, v in parts.items()}
+
+
+def check_distinct(roots: Sequence[str | Path]) -> None:
+    """Refuse a dataset listed twice: its frames would weigh twice in the training, silently."""
+    seen: dict[Path, str | Path] = {}
+    for root in roots:
+        same = seen.setdefault(Path(root).resolve(), root)
+        if same is not root:
+            raise DatasetError(f"--dataset lists {root} twice{f' (as {same})' if str(same) != str(root) else ''}: "
+                               "its frames would count twice; list each dataset once")
 
 
 def episode_bounds(episode_index: torch.Tensor) -> list[tuple[int, int]]:

@@ -79,6 +79,11 @@ class GearScene:
         """The right arm only: the fingers touch the table when picking, and the gear meets the peg when inserting."""
         return self._right_arm()
 
+    def hand_quat(self, ik, q9: np.ndarray) -> np.ndarray:
+        """The hand pointing down, the fingers closing along `finger_dir` (the measured one where IK finds none)."""
+        solution = ik.solve_hand_down(self.tcp(), self.finger_dir(), q9)
+        return solution[0] if solution is not None else np0(ik.arm.tcp.pose.q)
+
     def held_part(self, widen: float, lengthen: float) -> tuple[float, float, pin.SE3]:
         """The gear under the TCP, its axis the hand's (the TCP's z points down, into the gear)."""
         spec, length = self.spec, self.spec.height + lengthen

@@ -147,6 +147,9 @@ SPEC = TaskSpec(
     # only where the pre-insertion pose's tolerance begins.
     demonstrations={"pick": ("gear-transport-demos", (0,)), "move": ("gear-transport-demos", (1, 2)),
                     "insert": ("gear-insertion-demos", None)},
+    full_task_demos="gear-full-task-demos",
+    fixed_cameras=("head",),
+    controller_rollouts="gear-controller-rollouts",
     corrections={"move": "gear-move-dagger", "insert": "gear-insertion-dagger"},
     insertion_windows=INSERTION_WINDOWS,
 )

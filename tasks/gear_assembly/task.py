@@ -14,7 +14,7 @@ from policy_composer.tasks.gear_assembly.env import (
     PRE_INSERT_RADIUS,
     gear_whereabouts,
 )
-from policy_composer.tasks.gear_assembly.expert import GearAssemblyExpert
+from policy_composer.tasks.gear_assembly.expert import ExpertConfig, GearAssemblyExpert
 from policy_composer.tasks.gear_assembly.geometry import GearSpec
 from policy_composer.tasks.gear_assembly.kinematics import HandToPeg
 from policy_composer.tasks.gear_assembly.rollout import make_env
@@ -62,8 +62,8 @@ TASK = TaskDescription(
     sequence=TASK_SEQUENCE,
     insertions=INSERTIONS,
     scene=GearScene,
-    make_env=lambda obs_mode, settings, cameras=None: make_env(obs_mode, settings.resolution, settings.clearance_mm,
-                                                              cameras or settings.cameras),
+    make_env=lambda obs_mode, settings, cameras=None, **kwargs: make_env(
+        obs_mode, settings.resolution, settings.clearance_mm, cameras or settings.cameras, **kwargs),
     expert=GearAssemblyExpert,
     observe=lambda env: env.unwrapped.observe(),
     truth=methodcaller("predicates"),
@@ -75,4 +75,10 @@ TASK = TaskDescription(
     extra_proprioception=("hand_to_peg_x", "hand_to_peg_y", "hand_to_peg_z"),
     proprioception=hand_to_peg,
     rule_out=rule_out,
+    reset_starts={"insert": "pre_insertion", "regrasp": "pre_insertion"},
+    expert_starts={"move": "carry"},
+    # The open-loop expert carries as if the grasp were centred, as a planner would: the move's trials start with the
+    # gear off-centre in the fingers.
+    start_expert=lambda env: GearAssemblyExpert(env, ExpertConfig(closed_loop=False)),
+    step_unobserved=lambda env, action: env.unwrapped.step_unobserved(env.unwrapped.flat_to_dict_action(action)),
 )

@@ -11,8 +11,11 @@ wider), the hole's place in the box, the peg's and the box's positions and yaws 
 plane and within the hole's radius; it has no bound the other way, so a peg pushed through and past the box counts
 (ManiSkill issue 1391). ``strict_success`` asks, as well, that the head be no farther in than the box's far face.
 
-The env is made by mani-skill itself (``gym.make``), not copied: this module reads its state, and one observation
-wrapper adds ``extra.state`` (the arm's joints and the gripper's width, the library's `observation.state`).
+The env is made by mani-skill itself (``gym.make``), not copied: this module reads its state, and one wrapper adds
+what the library reads of a task: ``extra.state`` (the arm's joints and the gripper's width, its
+`observation.state`), the strict success as ``info["success"]`` (ManiSkill's own beside it as
+``info["success_maniskill"]``), the stage, and a second start state (``reset(options={"start": "pre_insertion"})``:
+the peg in the hand in front of the hole, where the insertion begins).
 """
 
 from __future__ import annotations
@@ -21,6 +24,15 @@ import gymnasium as gym
 import mani_skill.envs  # noqa: F401  (registers PegInsertionSide-v1)
 import torch
 
+from policy_composer.tasks.peg_insertion_side.expert import PegInsertionSideExpert
+from policy_composer.tasks.peg_insertion_side.flags import (  # noqa: F401  (the adapter's readings, re-exported)
+    HOLE_ENTRY,
+    PRE_INSERTION_DISTANCE,
+    box_half_depth,
+    predicates,
+    stage_of,
+    strict_success,
+)
 from policy_composer.tasks.peg_insertion_side.spec import (  # noqa: F401  (CAMERA_NAMES and PREDICATES: the task's names)
     CAMERA_NAMES,
     CONTROL_MODE,
@@ -29,14 +41,35 @@ from policy_composer.tasks.peg_insertion_side.spec import (  # noqa: F401  (CAME
     ROBOT,
 )
 
-HOLE_ENTRY = -0.015  # ManiSkill's bound: the peg's head this far short of the hole's centre plane, along its axis (m)
-PRE_INSERTION_DISTANCE = 0.05  # the peg's head at most this far in front of the box's near face (m)
-ALIGN_TOL_DEG = 10.0  # the peg's axis within this of the hole's at the pre-insertion pose
+PRE_INSERTION_STEPS = 200  # control steps the scripted expert may take to bring the peg to the pre-insertion pose
 
 
-class ArmState(gym.ObservationWrapper):
-    """Adds `extra.state`, (B, 8): the arm's 7 joint angles and the gripper's width (both fingers' positions summed),
-    as the library's controllers and recordings read a task's joint state."""
+class ArmState(gym.Wrapper):
+    """PegInsertionSide-v1 as the library reads a task.
+
+    - `extra.state`, (B, 8): the arm's 7 joint angles and the gripper's width (both fingers' positions summed), as the
+      library's controllers and recordings read a task's joint state;
+    - `info["success"]`: the strict success (ManiSkill's is `info["success_maniskill"]`), and `info["stage"]`;
+    - `reset(options={"start": "pre_insertion"})`: the scripted expert picks the peg up and carries it to the
+      pre-insertion pose, unobserved (no camera renders), and the episode starts there, at step 0, with the carry's
+      residual error uncorrected. Where the expert does not get there (its carry found no plan) the episode starts
+      where it stopped, and the subtask's initiation set says whether it may run from there.
+    """
+
+    def reset(self, *, seed=None, options=None):
+        options = dict(options or {})
+        start = options.pop("start", "table")
+        obs, info = self.env.reset(seed=seed, options=options)
+        if start == "pre_insertion":
+            self._carry_to_the_hole(seed)
+            obs, info = self.env.unwrapped.get_obs(self.env.unwrapped.get_info()), self.env.unwrapped.get_info()
+        elif start != "table":
+            raise ValueError(f"PegInsertionSide-v1 starts at 'table' or 'pre_insertion', not {start!r}")
+        return self.observation(obs), self._info(info)
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        return self.observation(obs), reward, terminated, truncated, self._info(info)
 
     def observation(self, obs):
         if not isinstance(obs, dict) or "agent" not in obs:
@@ -46,6 +79,30 @@ class ArmState(gym.ObservationWrapper):
         obs.setdefault("extra", {})["state"] = torch.cat([qpos[:, :7], qpos[:, 7:8] + qpos[:, 8:9]], dim=-1)
         return obs
 
+    def _info(self, info: dict) -> dict:
+        flags = predicates(self.env)
+        info["success_maniskill"], info["success"] = info["success"], flags["peg_seated"]
+        info["stage"] = stage_of(flags)
+        return info
+
+    def _carry_to_the_hole(self, seed) -> None:
+        u = self.env.unwrapped
+        expert = PegInsertionSideExpert(u)
+        expert.reset(seed)
+        for _ in range(PRE_INSERTION_STEPS):
+            if expert.phase in ("align", "insert", "done"):
+                break
+            step_unobserved(u, expert.act())
+        u._elapsed_steps[:] = 0  # the episode starts here
+
+
+def step_unobserved(env, action) -> None:
+    """A control step without an observation: physics only, no camera renders (ManiSkill's `step` less its
+    observation); for driving the scene where no one looks."""
+    u = env.unwrapped
+    u._step_action(action)
+    u._elapsed_steps += 1
+
 
 def make_env(**kwargs) -> gym.Env:
     """PegInsertionSide-v1 with the wrist camera robot, in joint-position control unless `control_mode` says otherwise;
@@ -53,34 +110,3 @@ def make_env(**kwargs) -> gym.Env:
     kwargs.setdefault("control_mode", CONTROL_MODE)
     return ArmState(gym.make(ENV_ID, robot_uids=ROBOT, **kwargs))
 
-
-def box_half_depth(env) -> torch.Tensor:
-    """(B,) half the box's depth along the hole's axis: ManiSkill builds the box as deep as the peg is long."""
-    return env.unwrapped.peg_half_sizes[:, 0]
-
-
-def _not_past(env, inserted: torch.Tensor, head: torch.Tensor) -> torch.Tensor:
-    """ManiSkill's `has_peg_inserted()` (inserted, the peg's head in the hole's frame, x into the box), with the head
-    no farther in than the box's far face."""
-    return inserted & (head[:, 0] <= box_half_depth(env))
-
-
-def strict_success(env) -> torch.Tensor:
-    """(B,) bool: ManiSkill's success, with the peg's head no farther in than the box's far face."""
-    return _not_past(env, *env.unwrapped.has_peg_inserted())
-
-
-def predicates(env) -> dict[str, torch.Tensor]:
-    """Each of PREDICATES from the simulator's truth, (B,) bool: privileged, for labels and the oracle."""
-    u = env.unwrapped
-    inserted, head = u.has_peg_inserted()
-    radius = u.box_hole_radii
-    peg_axis = u.peg.pose.to_transformation_matrix()[:, :3, 0]
-    hole_axis = u.box_hole_pose.to_transformation_matrix()[:, :3, 0]
-    aligned = (peg_axis * hole_axis).sum(-1) > torch.cos(torch.deg2rad(torch.tensor(ALIGN_TOL_DEG)))
-    on_axis = torch.linalg.norm(head[:, 1:], dim=-1) < radius
-    near_face = -box_half_depth(u)
-    in_front = (head[:, 0] < near_face) & (head[:, 0] > near_face - PRE_INSERTION_DISTANCE)
-    grasped = u.agent.is_grasping(u.peg)
-    return {"peg_grasped": grasped, "peg_at_hole": grasped & aligned & on_axis & in_front,
-            "peg_inserted": inserted, "peg_seated": _not_past(u, inserted, head)}

@@ -50,7 +50,7 @@ from transforms3d.quaternions import axangle2quat, qinverse, qmult, quat2axangle
 from policy_composer.policies.mp.planning import SceneCollisionModel, plan_rrt_connect, time_parameterize
 from policy_composer.tasks.base import PlanningError, np0
 from policy_composer.tasks.panda import GRIPPER_CLOSED, GRIPPER_OPEN, JOINT_HIGH, JOINT_LOW, ArmIK, hand_down_quat, se3
-from policy_composer.tasks.peg_insertion_side.env import HOLE_ENTRY, box_half_depth, strict_success
+from policy_composer.tasks.peg_insertion_side.flags import HOLE_ENTRY, box_half_depth, strict_success
 from policy_composer.tasks.peg_insertion_side.scene import box_obstacles, pose0
 from policy_composer.tasks.peg_insertion_side.spec import EXPERT_PHASES  # noqa: F401  (its phases, in order)
 from policy_composer.tasks.scene import HeldObject, table_obstacle
@@ -218,7 +218,8 @@ class PegInsertionSideExpert:
 
     # ------------------------------------------------------------------ episode
     def reset(self, seed: int | None = None) -> None:
-        """Read the new episode's scene (call after env.reset)."""
+        """Read the new episode's scene (call after env.reset). An episode that starts with the peg in the hand (the
+        pre-insertion start) starts at the alignment."""
         env, cfg = self.env, self.config
         self._half_length = float(env.peg_half_sizes[0, 0])
         self._half_width = float(env.peg_half_sizes[0, 1])
@@ -234,14 +235,19 @@ class PegInsertionSideExpert:
         self._obstacles = [table_obstacle(), *box_obstacles(self.env, HELD_MARGIN)]  # the walls grown by HELD_MARGIN
         self._walls = self._obstacles[1:]
         self._camera = self._camera_shapes()
-        self._choose_grasp()
-        self._above = self._grasp * sapien.Pose([0.0, 0.0, -cfg.approach_height])
         self._plan: np.ndarray | None = None
         self.plan_error: str | None = None  # why the carry's plan failed, if it did (a straight joint line is run)
         self._noise_rng = np.random.default_rng([episode_seed, 1])
         self._offset = np.zeros(3)
         self.label: torch.Tensor | None = None  # the last action the expert commanded
         self.executed: torch.Tensor | None = None  # the last action sent, noise included (see ExpertConfig.noise)
+        if bool(self.env.agent.is_grasping(self.env.peg)[0]):  # an episode that starts with the peg in the hand
+            self.phase, self._gripper, self._bias = "align", GRIPPER_CLOSED, sapien.Pose()
+            self.grasp_turned, self.grasp_pitch, self.grasp_feasible = False, 0.0, True
+            self.grasp_offset = float(-(self._tcp().inv() * self._peg()).p[0])
+            return
+        self._choose_grasp()
+        self._above = self._grasp * sapien.Pose([0.0, 0.0, -cfg.approach_height])
 
     def act(self, obs=None) -> torch.Tensor:
         """The next 8-D pd_joint_pos action (7 arm joint targets, gripper)."""
@@ -463,6 +469,11 @@ class PegInsertionSideExpert:
         return self.phase == "done"
 
 
+def maniskill_success(info: dict) -> bool:
+    """ManiSkill's own success in a step's info (the library's adapter moves it to `success_maniskill`)."""
+    return bool(info.get("success_maniskill", info["success"])[0])
+
+
 def run_episode(env, expert: PegInsertionSideExpert, seed: int, max_steps: int | None = None,
                 on_step: Callable[[int, dict], None] | None = None) -> EpisodeResult:
     """Reset with `seed` and run the expert until it is done or `max_steps` (the env's limit unless given), sending
@@ -478,8 +489,8 @@ def run_episode(env, expert: PegInsertionSideExpert, seed: int, max_steps: int |
         obs, _, _, _, info = env.step(expert.executed)
         steps += 1
         strict = bool(strict_success(env)[0])
-        overshoot |= bool(info["success"][0]) and not strict
+        overshoot |= bool(maniskill_success(info)) and not strict
         if on_step is not None:
             on_step(steps, info)
-    return EpisodeResult(seed=seed, strict_success=bool(strict_success(env)[0]), success=bool(info["success"][0]),
+    return EpisodeResult(seed=seed, strict_success=bool(strict_success(env)[0]), success=maniskill_success(info),
                          overshoot=overshoot, steps=steps, phases=phases)

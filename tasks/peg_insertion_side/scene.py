@@ -12,7 +12,7 @@ import sapien
 
 from policy_composer.tasks.base import np0
 from policy_composer.tasks.panda import se3
-from policy_composer.tasks.peg_insertion_side.env import box_half_depth
+from policy_composer.tasks.peg_insertion_side.flags import box_half_depth
 from policy_composer.tasks.scene import Obstacle, table_obstacle
 
 MARGIN = 0.004  # around the box's walls in the collision checks (m)
@@ -78,6 +78,10 @@ class PegScene:
         d = self.planner_peg().to_transformation_matrix()[:3, 0].copy()
         d[2] = 0.0
         return d / np.linalg.norm(d)
+
+    def hand_quat(self, ik, q9: np.ndarray) -> np.ndarray:
+        """The hand as it holds the peg now (the grasp fixes how the peg meets the hole)."""
+        return np0(self.env.agent.tcp.pose.q)
 
     def planning_obstacles(self) -> list[Obstacle]:
         return [table_obstacle(), *box_obstacles(self.env)]

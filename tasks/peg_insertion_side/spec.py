@@ -17,6 +17,7 @@ STATE_NAMES = (*ARM_JOINTS, "gripper_width")
 ACTION_NAMES = (*ARM_JOINTS, "gripper")
 CONTROL_MODE = "pd_joint_pos"
 MAX_EPISODE_STEPS = 100  # ManiSkill's default
+EPISODE_LIMIT = 200  # control steps an episode of the library's may take: twice ManiSkill's default
 EXPERT_PHASES = ("approach", "descend", "close", "lift", "move", "align", "insert", "done")
 # What the controllers' initiation sets and terminations are made of (labels of the recordings).
 PREDICATES = {
@@ -68,7 +69,7 @@ SPEC = TaskSpec(
     state_names=STATE_NAMES,
     action_names=ACTION_NAMES,
     predicates=PREDICATES,
-    start_states=("table",),
+    start_states=("table", "pre_insertion"),
     expert_phases=EXPERT_PHASES,
     goal_flags=("success",),
     expert_settings=ExpertSettings,
@@ -85,4 +86,9 @@ SPEC = TaskSpec(
     goal_camera="base_camera",
     predicate_cameras=CAMERA_NAMES,
     demonstrations={"insert": ("peg-insertion-demos", None)},
+    full_task_demos="peg-full-task-demos",
+    fixed_cameras=("base_camera",),
+    controller_rollouts="peg-controller-rollouts",
+    corrections={"insert": "peg-insertion-dagger"},
+    episode_steps=EPISODE_LIMIT,
 )

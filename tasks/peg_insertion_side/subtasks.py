@@ -13,7 +13,7 @@ import sapien
 
 from policy_composer.tasks.base import PlanningError, Subtask, Waypoint, np0
 from policy_composer.tasks.panda import GRIPPER_CLOSED, GRIPPER_OPEN, ik_hand_down, line_to
-from policy_composer.tasks.peg_insertion_side.env import HOLE_ENTRY, PRE_INSERTION_DISTANCE
+from policy_composer.tasks.peg_insertion_side.flags import HOLE_ENTRY, PRE_INSERTION_DISTANCE
 from policy_composer.tasks.peg_insertion_side.scene import grasp_offset
 
 APPROACH_HEIGHT = 0.06  # TCP above the grasp point before descending (m)

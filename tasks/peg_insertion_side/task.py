@@ -4,17 +4,18 @@ know, and the simulator's predicates kept apart as the privileged truth."""
 from __future__ import annotations
 
 import numpy as np
+import sapien
 import torch
 
 from policy_composer.tasks.base import TaskDescription
-from policy_composer.tasks.peg_insertion_side.env import ArmState, make_env, predicates
+from policy_composer.tasks.peg_insertion_side.env import ArmState, make_env, step_unobserved
 from policy_composer.tasks.peg_insertion_side.expert import PegInsertionSideExpert
+from policy_composer.tasks.peg_insertion_side.flags import predicates, stage_of
 from policy_composer.tasks.peg_insertion_side.scene import PegScene, pose0
-from policy_composer.tasks.peg_insertion_side.spec import SPEC
+from policy_composer.tasks.peg_insertion_side.spec import EPISODE_LIMIT, SPEC
 from policy_composer.tasks.peg_insertion_side.subtasks import INSERTIONS, SUBTASKS, TASK_SEQUENCE
 
 PROGRESS = ("peg_grasped", "peg_at_hole", "peg_inserted", "peg_seated")
-EPISODE_LIMIT = 200  # control steps an episode of the library's may take: twice ManiSkill's default
 
 
 def make_library_env(obs_mode: str, settings, cameras: tuple[str, ...] | None = None, **kwargs):
@@ -46,20 +47,19 @@ def env_action(env, action: torch.Tensor) -> torch.Tensor:
 
 
 def stage(env, info: dict | None = None, flags: dict | None = None) -> int:
-    """0 pick, 1 move, 2 insert, 3 done, from the predicates (`flags`, where the caller has them)."""
-    flags = predicates(env) if flags is None else flags
-    if bool(flags["peg_seated"][0]):
-        return 3
-    if bool(flags["peg_at_hole"][0] | flags["peg_inserted"][0]):
-        return 2
-    return int(bool(flags["peg_grasped"][0]))
+    """0 pick, 1 move, 2 insert, 3 done (the info's, or from the predicates `flags` where the caller has them)."""
+    if info is not None and "stage" in info:
+        return int(info["stage"][0])
+    return int(stage_of(predicates(env) if flags is None else flags)[0])
 
 
 def labels(env, info: dict | None = None) -> tuple[int, np.ndarray, np.ndarray]:
-    """The stage, the peg's centre in the TCP's frame (m) and the predicates."""
+    """The stage, the peg's head in the hole's frame (m; what the insertion corrects, x along the axis into the box) and
+    the predicates."""
     u = env.unwrapped
     flags = predicates(u)
-    offset = (pose0(u.agent.tcp.pose).inv() * pose0(u.peg.pose)).p.astype(np.float32)
+    offset = (pose0(u.box_hole_pose).inv() * pose0(u.peg.pose) * sapien.Pose([float(u.peg_half_sizes[0, 0]), 0, 0])
+              ).p.astype(np.float32)
     return stage(u, flags=flags), offset, np.array([float(v[0]) for v in flags.values()], dtype=np.float32)
 
 
@@ -90,4 +90,8 @@ TASK = TaskDescription(
     whereabouts=whereabouts,
     labels=labels,
     stage=stage,
+    reset_starts={"insert": "pre_insertion"},
+    expert_starts={"move": "move"},
+    start_expert=PegInsertionSideExpert,
+    step_unobserved=step_unobserved,
 )

@@ -50,7 +50,7 @@ def cmd_library_add(args: argparse.Namespace) -> int:
 
 def add_commands(sub) -> None:
     compose = sub.add_parser("compose", help="the selector composes the library in GearAssembly-v1 rollouts")
-    env_options(compose)
+    env_options(compose, task=True)
     compose.add_argument("--episodes", type=at_least(1), default=10)
     compose.add_argument("--models", default=WORLD, help="world-model folder (train world-model, goal-score)")
     model_options(compose)

@@ -48,14 +48,14 @@ def cmd_evaluate_expert(args: argparse.Namespace) -> int:
 
 def cmd_evaluate_controllers(args: argparse.Namespace) -> int:
     """Paper Table I, rows MP, DMP and CNN, and a row for each --lerobot checkpoint."""
-    from policy_composer.app.controller_table import evaluate_table, write_table
+    from policy_composer.app.controller_table import evaluate_table, paper_table, write_table
 
     rows = evaluate_table([k for k in args.kinds.split(",") if k], library_sources(args), args.trials, args.seed,
                           args.resolution, args.clearance, workers=episode_workers(args),
                           columns=args.subtasks, predicates=args.models if args.senses == "learned" else None)
     for kind, row in rows.items():
         print(f"{kind}: " + ", ".join(f"{c} {cell}" for c, cell in row.items()))
-    print(f"table: {write_table(rows, Path(args.out))}")
+    print(f"table: {write_table(rows, Path(args.out), paper=paper_table(args.task))}")
     return 0
 
 
@@ -81,7 +81,7 @@ def add_commands(sub) -> None:
                            help="carry and insert assuming a centred grasp (shows why insertion needs feedback)")
     ev_expert.set_defaults(func=cmd_evaluate_expert)
     ev_ctrl = ev_sub.add_parser("controllers", help="each controller kind on each subtask (paper Table I)")
-    env_options(ev_ctrl)
+    env_options(ev_ctrl, task=True)
     labels = ",".join(k.label for k in kinds().values())
     ev_ctrl.add_argument("--trials", type=at_least(1), default=10)
     ev_ctrl.add_argument("--kinds", default=labels, help=f"comma-separated kinds (default: {labels}; '' for none: "

@@ -11,15 +11,17 @@ from policy_composer.app.arguments import at_least
 from policy_composer.app.cli.options import env_options, episode_workers, make_env, make_expert, workers_option
 from policy_composer.app.demo import PROFILES, run_demo
 from policy_composer.data import atomic
+from policy_composer.tasks.registry import DEFAULT_TASK, TASKS
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
     """The main job: the whole paper, stage by stage (finished stages are reused), then the report."""
+    out = args.out or ("results" if args.task == DEFAULT_TASK else f"results-{args.task}")
     try:
-        _, report = run_demo(args.profile, args.out, episode_workers(args))
+        _, report = run_demo(args.profile, out, episode_workers(args), args.task)
     except KeyboardInterrupt:
         print(f"\ninterrupted: finished stages (and the episodes of an unfinished recording or composed run) are kept "
-              f"in {Path(args.out) / 'pipeline'}; run the same command again to resume", file=sys.stderr)
+              f"in {Path(out) / 'pipeline'}; run the same command again to resume", file=sys.stderr)
         return 130
     print(f"report: {report} and {report.with_suffix('.html')} (open it in a browser)")
     return 0
@@ -73,7 +75,10 @@ def add_commands(sub) -> None:
     demo = sub.add_parser("demo", help="the main job: record, train, evaluate, compose, the MDP, the report")
     demo.add_argument("--profile", default="quick", choices=tuple(PROFILES),
                       help="quick: 30 min on 2 CPU cores; paper: the paper's sizes; smoke: every stage, tiny (tests)")
-    demo.add_argument("--out", default="results", help="report.md, report.html and the stages' outputs (pipeline/)")
+    demo.add_argument("--out", help="report.md, report.html and the stages' outputs (pipeline/); default: results, "
+                      "or results-TASK for a task other than the default")
+    demo.add_argument("--task", default=DEFAULT_TASK, choices=tuple(TASKS),
+                      help=f"the task the paper's method composes (default {DEFAULT_TASK})")
     workers_option(demo)
     demo.set_defaults(func=cmd_demo)
     expert = sub.add_parser("expert", help="the scripted expert on a few seeds, with videos of the three cameras")

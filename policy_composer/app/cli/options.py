@@ -9,6 +9,7 @@ from policy_composer.app.arguments import at_least, between
 from policy_composer.policies.library import MODELS, LeRobotSource, LibrarySources
 from policy_composer.policies.registry import LibraryError, kinds
 from policy_composer.tasks.gear_assembly.spec import CLEARANCE_MM, GRASP_OFFSET_MM, RESOLUTION, EnvSettings
+from policy_composer.tasks.registry import DEFAULT_TASK, TASKS
 
 DEFAULT_GRASP_OFFSET_MM = LibrarySources.max_grasp_offset * 1000  # the expert's and the pick-up's
 WORLD = str(MODELS / "world")  # the world model and goal scorers' folder
@@ -20,8 +21,9 @@ def dataset_path(recipe: str) -> str:
     return str(Path("datasets") / recipe)
 
 
-def library_sources(args: argparse.Namespace) -> LibrarySources:
-    """The library's model sources from the per-kind flags (`model_options`) and --lerobot."""
+def library_sources(args: argparse.Namespace, task: str | None = None) -> LibrarySources:
+    """The library of `task` (default: --task, or the default task), its model sources from the per-kind flags
+    (`model_options`) and --lerobot."""
     lerobot = tuple(lerobot_source(spec) for spec in getattr(args, "lerobot", ()))
     named = [s.controller_name for s in lerobot]
     if len(set(named)) < len(named):
@@ -31,7 +33,8 @@ def library_sources(args: argparse.Namespace) -> LibrarySources:
                           lerobot=lerobot,
                           max_grasp_offset=getattr(args, "grasp_offset", DEFAULT_GRASP_OFFSET_MM) / 1000.0,
                           gear_noise=getattr(args, "gear_noise", 0.0) / 1000.0,
-                          insertion=getattr(args, "insertion", LibrarySources.insertion))
+                          insertion=getattr(args, "insertion", LibrarySources.insertion),
+                          task=task or getattr(args, "task", None) or DEFAULT_TASK)
 
 
 def lerobot_source(spec: str) -> LeRobotSource:
@@ -108,7 +111,8 @@ def training_threads(threads: int) -> None:
 
 
 
-def env_options(p: argparse.ArgumentParser, grasp: bool = True) -> None:
+def env_options(p: argparse.ArgumentParser, grasp: bool = True, task: bool = False) -> None:
+    """The env's settings and the first seed; with `task`, --task (a command that runs any task's library)."""
     p.add_argument("--resolution", type=between(*RESOLUTION, " pixels", int), default=EnvSettings.resolution,
                    help="camera width and height in pixels")
     p.add_argument("--clearance", type=between(*CLEARANCE_MM, " mm"), default=EnvSettings.clearance_mm,
@@ -120,6 +124,9 @@ def env_options(p: argparse.ArgumentParser, grasp: bool = True) -> None:
                        help="noise (standard deviation per axis in the table's plane, mm) on the gear position the "
                             "pick-up's planner is given, its one input from the simulator")
     p.add_argument("--seed", type=at_least(0), default=0, help="first seed")
+    if task:
+        p.add_argument("--task", default=DEFAULT_TASK, choices=tuple(TASKS),
+                       help=f"the task whose library runs (default {DEFAULT_TASK}); settings it lacks are ignored")
 
 
 def workers_option(p: argparse.ArgumentParser) -> None:

@@ -21,7 +21,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     from policy_composer.data.recipes import RecipeError, load_recipe
 
     recipe = load_recipe(args.recipe)
-    sources = library_sources(args)
+    sources = library_sources(args, recipe.task_name)
     if args.controllers:
         chosen = args.controllers
         known = (*recipe_controllers(recipe), *(s.controller_name for s in sources.lerobot))
