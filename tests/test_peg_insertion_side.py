@@ -109,6 +109,11 @@ def test_the_recorder_records_the_peg_tasks_expert_from_both_cameras(tmp_path):
     assert sidecar["task_name"] == "peg-insertion-side" and sidecar["episodes"][0]["success"]
     frames = LeRobotDataset("local/peg", root=root)
     assert frames.num_episodes == 1 and frames[0]["observation.images.hand_camera"].shape == (3, 32, 32)
+    # The recipe's hold_steps: the episode ends with the peg seated for that many frames and more, so the recordings
+    # show the goal reached.
+    seated = list(PREDICATES).index("peg_seated")
+    last = [bool(frames[len(frames) - 1 - k]["predicates"][seated]) for k in range(5)]
+    assert all(last) and not frames[0]["predicates"][seated]
     refused = run_cli("record", "peg-full-task-demos", "--clearance", "2", "--root", str(tmp_path / "no"),
                       cwd=tmp_path)
     assert refused.returncode == 2 and "PegInsertionSide-v1 has no setting clearance" in refused.stderr

@@ -194,11 +194,17 @@ class EpisodeRecorder:
         expert.reset(seed)
         buffer.controller = expert.name
         info = None
-        # The episode ends once the expert has left the last phase the recipe records.
+        # The episode ends once the expert has left the last phase the recipe records, or is done and has held
+        # still for the recipe's hold_steps.
         last = max(map(phases.index, recipe.record_phases), default=len(phases) - 1)
+        held = 0
         for _ in range(episode_limit(buffer)):
-            if expert.done or phases.index(expert.phase) > last:
+            if phases.index(expert.phase) > last:
                 break
+            if expert.done:
+                if held >= recipe.hold_steps:
+                    break
+                held += 1
             buffer.recording = not recipe.record_phases or expert.phase in recipe.record_phases
             label = expert.act(obs)
             obs, _, _, _, info = buffer.step(expert.executed, label=label)

@@ -48,6 +48,9 @@ class Recipe:
     start: str = ""  # "expert" driver: where episodes start (one of the task's start states; "": its first)
     keep: str = "success"  # "success": failed episodes are dropped and another seed is tried; "all"
     train_episodes: int | None = None  # episodes [0, train_episodes) train, the rest are held out
+    # "expert" driver: control steps recorded after the expert is done, the part held where it ended, so that the
+    # recordings show the goal reached (what a "seated" classifier and a policy's stop learn from)
+    hold_steps: int = 0
     # "controllers" driver: which to run (empty: every registered controller); "dagger": the one that acts
     controllers: tuple[str, ...] = ()
     cameras: tuple[str, ...] = ()  # cameras to render and record (empty: every camera of the task)
@@ -75,6 +78,9 @@ class Recipe:
         object.__setattr__(self, "cameras", self.cameras or spec.cameras)
         if self.episodes < 1:
             raise RecipeError(f"recipe {self.name}: episodes must be at least 1, not {self.episodes}")
+        if self.hold_steps < 0 or (self.hold_steps and self.driver != "expert"):
+            raise RecipeError(f"recipe {self.name}: hold_steps must be at least 0, and is for the expert driver only "
+                              f"(it is {self.hold_steps}, driver {self.driver!r})")
         if self.train_episodes is not None and self.train_episodes < 0:
             raise RecipeError(f"recipe {self.name}: train_episodes must be at least 0, not {self.train_episodes}")
         if self.driver not in DRIVERS:
