@@ -27,7 +27,6 @@ from policy_composer.tasks.registry import DEFAULT_TASK, get_spec
 
 # The controllers that `--insertion straight` changes on the gear: the paper's open-loop insertions.
 STRAIGHT = ("mp_insert", "dmp_insert")
-COLUMNS = ("pick", "move", "insert", "full")  # Table I's
 # The first seed of each CNN policy's DAgger rollouts (round K starts 1000 (K - 1) later): clear of the seeds the
 # job's tables and compositions run (and of the replacements Table I draws, seed + 1000 k).
 DAGGER_SEEDS = {"insert": 80000, "move": 90000}
@@ -452,12 +451,13 @@ def _evaluate_goal(out: Path, inputs: dict[str, Path], cameras: tuple[str, ...])
 
 
 def _table(out: Path, inputs: dict[str, Path], p: Profile, kinds: tuple[str, ...], workers: int, task: str,
-           insertion: str = "", columns: tuple[str, ...] = COLUMNS) -> dict:
-    from policy_composer.app.controller_table import evaluate_table, paper_table, write_table
+           insertion: str = "", columns: tuple[str, ...] | None = None) -> dict:
+    """Table I's `columns` (default: all of them) for the rows of `kinds`, into out/controllers.md."""
+    from policy_composer.app.controller_table import SUBTASK_COLUMNS, evaluate_table, paper_table, write_table
 
     rows = evaluate_table(list(kinds), _sources(inputs, task, insertion), p.table_trials, 0, p.resolution,
-                          workers=workers,
-                          columns=columns, column_trials={"insert": p.insert_trials or p.table_trials})
+                          workers=workers, columns=columns or SUBTASK_COLUMNS,
+                          column_trials={"insert": p.insert_trials or p.table_trials})
     write_table(rows, out, paper=paper_table(task))
     return {"workers": workers,
             "rows": {kind: {c: [cell.successes, cell.trials, cell.safety_stops] for c, cell in row.items()}

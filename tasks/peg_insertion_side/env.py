@@ -62,7 +62,8 @@ class ArmState(gym.Wrapper):
         obs, info = self.env.reset(seed=seed, options=options)
         if start == "pre_insertion":
             self._carry_to_the_hole(seed)
-            obs, info = self.env.unwrapped.get_obs(self.env.unwrapped.get_info()), self.env.unwrapped.get_info()
+            info = self.env.unwrapped.get_info()
+            obs = self.env.unwrapped.get_obs(info)
         elif start != "table":
             raise ValueError(f"PegInsertionSide-v1 starts at 'table' or 'pre_insertion', not {start!r}")
         return self.observation(obs), self._info(info)
