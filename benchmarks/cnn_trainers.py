@@ -24,6 +24,8 @@ import sys
 import time
 from pathlib import Path
 
+from policy_composer.tasks.gear_assembly.spec import INSERTION_WINDOWS
+
 BIN = Path(sys.executable).parent
 OTHER_CAMERAS = '["observation.images.head","observation.images.right_forearm"]'
 
@@ -43,8 +45,6 @@ def main() -> None:
     parser.add_argument("--one-camera", action="store_true", help="train lerobot-train on a one-camera copy")
     args = parser.parse_args()
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
-    from policy_composer.tasks.gear_assembly.spec import INSERTION_WINDOWS
-
     frames = json.loads((args.dataset / "meta" / "info.json").read_text())["total_frames"]
     batch = 120
     steps = args.epochs * math.ceil(frames / batch)

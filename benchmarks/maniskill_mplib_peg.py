@@ -48,7 +48,7 @@ def give_up(line: str) -> None:
 def check_mplib() -> str:
     """mplib's version; or one line on stderr saying what to install, and exit code 2."""
     try:
-        import mplib
+        import mplib  # noqa: PLC0415  (optional, and needs numpy 1 laid over the environment)
     except ImportError:
         give_up("mplib is not installed: pip install --no-deps mplib==0.1.1 toppra (mani-skill 3.0.1's pin), and run "
                 f"under numpy<2: {OVERLAY}")
@@ -88,7 +88,8 @@ def main() -> None:
     args = parser.parse_args()
     seeds = range(args.seed, args.seed + args.episodes)
     version = check_mplib()
-    from mani_skill.examples.motionplanning.panda.solutions.peg_insertion_side import solve
+    # imports mplib: after check_mplib has said what is missing
+    from mani_skill.examples.motionplanning.panda.solutions.peg_insertion_side import solve  # noqa: PLC0415
 
     # exactly as the solution's own main() makes it
     env = gym.make("PegInsertionSide-v1", obs_mode="none", control_mode="pd_joint_pos", render_mode="rgb_array",

@@ -23,8 +23,8 @@ import gymnasium as gym  # noqa: E402
 import torch  # noqa: E402
 
 import policy_composer.tasks.gear_assembly.env  # noqa: E402,F401  (registers GearAssembly-v1)
-from policy_composer.data.features import open_dataset  # noqa: E402
 from policy_composer.data.recorder import LeRobotRecorder  # noqa: E402
+from policy_composer.data.verify import open_dataset  # noqa: E402
 from policy_composer.tasks.gear_assembly.expert import GearAssemblyExpert  # noqa: E402
 
 

@@ -22,15 +22,18 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+from policy_composer.app.composition import compose_library
+from policy_composer.app.controller_table import evaluate_rows
+from policy_composer.app.record import record_recipe
+from policy_composer.data.recipes import load_recipe
+from policy_composer.policies.library import LibrarySources
+from policy_composer.selector.configuration import ComposeConfig
+from policy_composer.tasks.gear_assembly.spec import EnvSettings
+
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
 
 def record(recipe: str, root: Path, episodes: int, resolution: int, workers: int, **changes) -> dict:
-    from policy_composer.app.record import record_recipe
-    from policy_composer.data.recipes import load_recipe
-    from policy_composer.policies.library import LibrarySources
-    from policy_composer.tasks.gear_assembly.spec import EnvSettings
-
     sidecar = record_recipe(replace(load_recipe(recipe), **changes), root, episodes=episodes,
                             settings=EnvSettings(resolution=resolution), progress=False, sources=LibrarySources(),
                             workers=workers)
@@ -38,19 +41,12 @@ def record(recipe: str, root: Path, episodes: int, resolution: int, workers: int
 
 
 def table(trials: int, resolution: int, workers: int) -> dict:
-    from policy_composer.app.controller_table import evaluate_rows
-    from policy_composer.policies.library import LibrarySources
-
     rows = evaluate_rows({"MP": ("mp_pick", "mp_insert")}, LibrarySources(), trials, first_seed=7000,
                          resolution=resolution, progress=False, workers=workers)
     return {c: (cell.successes, cell.trials) for c, cell in rows["MP"].items()}
 
 
 def compose(models: str, dmp: str, cnn: str, episodes: int, resolution: int, workers: int, out: Path) -> list:
-    from policy_composer.app.composition import compose_library
-    from policy_composer.policies.library import LibrarySources
-    from policy_composer.selector.configuration import ComposeConfig
-
     sources = LibrarySources(models={"dmp": dmp, "cnn": cnn})
     runs = compose_library(models, sources, ComposeConfig(), list(range(12000, 12000 + episodes)), out, videos=0,
                            resolution=resolution, progress=False, workers=workers)

@@ -8,6 +8,8 @@ from __future__ import annotations
 import csv
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
 import torch
 
 from policy_composer.data import atomic
@@ -58,11 +60,7 @@ def evaluate_goal_scores(models: str | Path, demos: str | Path, out: str | Path,
 
 
 def _plot(curves: dict[str, torch.Tensor], frames: dict[str, torch.Tensor], path: Path) -> None:
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     bounds = episode_bounds(frames["episode_index"])
     fig, axes = plt.subplots(1, len(curves), figsize=(4.5 * len(curves), 3.4), sharey=True, squeeze=False)
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from scipy.stats import spearmanr
 from torch import nn
 
 from policy_composer.data.frames import episode_bounds, random_shift, to_model_image
@@ -136,8 +137,6 @@ def load_latent_goal_score(path: str | Path) -> LatentGoalScoreModel:
 
 def goal_score_metrics(scores: torch.Tensor, progress: torch.Tensor, episode_index: torch.Tensor) -> dict:
     """Spearman correlation with true progress (mean over episodes) and mean absolute error."""
-    from scipy.stats import spearmanr
-
     rhos = [spearmanr(scores[a:b].numpy(), progress[a:b].numpy()).statistic for a, b in episode_bounds(episode_index)]
     return {"spearman": float(np.mean(rhos)), "mae": float((scores - progress).abs().mean()),
             "episodes": len(rhos), "frames": len(scores)}

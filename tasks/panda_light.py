@@ -16,7 +16,10 @@ import os
 import shutil
 from pathlib import Path
 
+import fast_simplification
 import mani_skill
+import trimesh
+from filelock import FileLock
 from mani_skill import PACKAGE_ASSET_DIR
 from mani_skill.agents.registration import register_agent
 from mani_skill.agents.robots.panda import Panda
@@ -33,9 +36,6 @@ def cache_dir() -> Path:
 
 
 def _decimate_glb(src: Path, dst: Path, ratio: float) -> None:
-    import fast_simplification
-    import trimesh
-
     scene = trimesh.load(src, force="scene")
     for name, mesh in list(scene.geometry.items()):
         mesh.merge_vertices(merge_tex=True, merge_norm=True)  # GLB meshes are triangle soups
@@ -56,8 +56,6 @@ def _decimate_glb(src: Path, dst: Path, ratio: float) -> None:
 def decimated_panda_urdf(ratio: float = DECIMATION) -> Path:
     """Path to a Panda URDF with decimated visual meshes, building the cache on first use. Processes that start
     together on a fresh machine (an episode loop's workers) build it once: the others wait on its lock."""
-    from filelock import FileLock
-
     root = cache_dir() / f"panda_light-{CACHE_LAYOUT}-ms{mani_skill.__version__}-r{ratio:g}"
     urdf = root / _URDF_NAME
     if urdf.exists():

@@ -14,11 +14,18 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 if int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")) > 1:
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # the test workers are the parallelism: torch takes one core each
 
+from dataclasses import replace
+
 import gymnasium as gym
 import pytest
 from filelock import FileLock
 
 import policy_composer.tasks  # noqa: F401  (registers GearAssembly-v1; the simulator loads at the first gym.make)
+from policy_composer.app.cli import main
+from policy_composer.app.record import record_recipe
+from policy_composer.data.recipes import load_recipe
+from policy_composer.policies.library import LibrarySources
+from policy_composer.tasks.gear_assembly.spec import INSERTION_WINDOWS, EnvSettings
 
 
 def pytest_collection_modifyitems(items):
@@ -54,12 +61,6 @@ def shared(tmp_path_factory, name: str, build: Callable[[Path], object]) -> Path
 def record_dataset(folder: Path, recipe: str, episodes: int, resolution: int, name: str | None = None, sources=None,
                    **changes) -> Path:
     """Record `episodes` of `recipe` (with `changes` to its fields) at `resolution` px into `folder`/`name`."""
-    from dataclasses import replace
-
-    from policy_composer.app.record import record_recipe
-    from policy_composer.data.recipes import load_recipe
-    from policy_composer.tasks.gear_assembly.spec import EnvSettings
-
     root = folder / (name or recipe)
     record_recipe(replace(load_recipe(recipe), **changes), root, episodes=episodes,
                   settings=EnvSettings(resolution=resolution), progress=False, sources=sources)
@@ -90,8 +91,6 @@ def full_task_demos(tmp_path_factory):
 @pytest.fixture(scope="session")
 def controller_rollouts(tmp_path_factory):
     """One rollout each of mp_pick and mp_insert at 32x32 (head and left forearm cameras): the dynamics models' data."""
-    from policy_composer.policies.library import LibrarySources
-
     record = partial(record_dataset, recipe="gear-controller-rollouts", episodes=1, resolution=32, name="rollouts",
                      sources=LibrarySources(max_grasp_offset=0.0), controllers=("mp_pick", "mp_insert"))
     return shared(tmp_path_factory, "rollouts", record) / "rollouts"
@@ -144,8 +143,6 @@ def cnn_mdn_checkpoint(insertion_demos, tmp_path_factory):
     """The paper's policy through lerobot-train (the `lerobot_policy_cnn_mdn` plugin), as the project trains its
     insertion: the left forearm camera's insertion window, the gripper's width, the gear-offset auxiliary loss. Its
     binary action is named: in two episodes, the right arm's joints (still in each) take two values too."""
-    from policy_composer.tasks.gear_assembly.spec import INSERTION_WINDOWS
-
     window = ",".join(map(str, INSERTION_WINDOWS["left_forearm"]))
     train = partial(lerobot_train, insertion_demos, policy="cnn_mdn", args=(
         "--policy.camera=left_forearm", f"--policy.window=[{window}]", "--policy.state_indices=[7]",
@@ -158,8 +155,6 @@ def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
     """`policy-composer ARGS` in this process, as a user sees it: its exit code, stdout and stderr. In-process, a
     command costs what it does, not a fresh interpreter importing torch and the simulator; a raised exception (what
     a user would see as a traceback) fails the test."""
-    from policy_composer.app.cli import main
-
     stdout, stderr, before = io.StringIO(), io.StringIO(), os.getcwd()
     os.chdir(cwd or Path.cwd())
     try:

@@ -1,11 +1,16 @@
 """The command line as a user runs it: the scripted expert with its videos, and bad values refused up front."""
 
 import json
+import shutil
 from pathlib import Path
 
 import imageio.v3 as iio
 import pytest
 from conftest import run_cli, tree_digest
+
+from policy_composer.learning.checkpoint import save_checkpoint
+from policy_composer.selector.configuration import VAEConfig
+from policy_composer.selector.vae import VAE
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -88,17 +93,11 @@ def test_training_on_the_wrong_recipe_is_refused(request, tmp_path, command, wro
 
 
 def _copy(dataset: Path, tmp_path: Path) -> Path:
-    import shutil
-
     return Path(shutil.copytree(dataset, tmp_path / "input" / dataset.name))
 
 
 def _vae(root: Path, truncate: bool = False) -> Path:
     """A real (untrained) VAE checkpoint in a world-model folder, its weights cut in half if `truncate`."""
-    from policy_composer.learning.checkpoint import save_checkpoint
-    from policy_composer.selector.configuration import VAEConfig
-    from policy_composer.selector.vae import VAE
-
     config = VAEConfig(image_size=32, latent_dim=8)
     save_checkpoint(VAE(config), config, root / "vae")
     if truncate:

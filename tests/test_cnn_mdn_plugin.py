@@ -14,6 +14,13 @@ import numpy as np
 import pytest
 import torch
 from conftest import lerobot, lerobot_train, trained
+from lerobot.configs import FeatureType, PolicyFeature
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from lerobot.policies.factory import make_pre_post_processors
+from lerobot_policy_cnn_mdn import CNNMDNConfig
+from lerobot_policy_cnn_mdn.modeling_cnn_mdn import CNNMDNPolicy
+
+from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
 
 
 def test_lerobot_finds_the_policy_by_its_distributions_name():
@@ -40,8 +47,6 @@ print(json.dumps([before, get_policy_class("cnn_mdn").__name__, pre.name, post.n
 def foreign_dataset(root: Path) -> Path:
     """A LeRobot dataset the project did not record: one 48-px wrist camera stored as images, a 6-D state, and a
     6-D action whose last entry is a gripper commanded to 0 or 0.08."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
     names = [f"joint{i}" for i in range(5)] + ["gripper"]
     features = {"observation.images.wrist": {"dtype": "image", "shape": (48, 48, 3),
                                              "names": ["height", "width", "channels"]},
@@ -69,9 +74,6 @@ def test_lerobot_train_fits_it_on_a_dataset_the_project_did_not_record(tmp_path)
     # Its camera is the dataset's only one; the gripper is found two-valued in the dataset's statistics.
     assert config["camera"] == "wrist" and config["binary_actions"] == [5]
 
-    from lerobot.policies.factory import make_pre_post_processors
-    from lerobot_policy_cnn_mdn.modeling_cnn_mdn import CNNMDNPolicy
-
     policy = CNNMDNPolicy.from_pretrained(checkpoint).eval()
     pre, post = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
     batch = {"observation.images.wrist": torch.rand(3, 48, 48), "observation.state": torch.zeros(6), "task": ""}
@@ -83,10 +85,6 @@ def test_lerobot_train_fits_it_on_a_dataset_the_project_did_not_record(tmp_path)
 def test_lerobot_train_fits_it_on_the_projects_dataset_with_the_projects_network(cnn_mdn_checkpoint):
     """Trained as the project trains its insertion; the weights are those of policies/cnn/modeling_cnn.py's network,
     and the camera it does not read is not among its inputs."""
-    from lerobot_policy_cnn_mdn.modeling_cnn_mdn import CNNMDNPolicy
-
-    from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
-
     checkpoint, res = cnn_mdn_checkpoint
     assert res.returncode == 0, (res.stdout + res.stderr)[-3000:]
     assert "step:2" in res.stdout + res.stderr
@@ -109,9 +107,6 @@ def test_lerobot_eval_runs_it_on_gear_assembly(cnn_mdn_checkpoint, tmp_path):
 
 
 def test_a_dataset_without_a_camera_is_refused_with_the_reason():
-    from lerobot.configs import FeatureType, PolicyFeature
-    from lerobot_policy_cnn_mdn import CNNMDNConfig
-
     config = CNNMDNConfig(input_features={"observation.state": PolicyFeature(FeatureType.STATE, (6,))},
                           output_features={"action": PolicyFeature(FeatureType.ACTION, (6,))})
     with pytest.raises(ValueError, match="at least one camera .* and a state"):

@@ -1,10 +1,18 @@
 """GearAssembly-v1 builds, renders its three cameras, is deterministic per seed, and rejects bad input."""
 
+import subprocess
+import sys
+
 import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from mani_skill.utils.structs.pose import Pose
+from transforms3d.euler import euler2quat
 
+from policy_composer.app.starts import start_state
+from policy_composer.tasks.gear_assembly.expert import GearAssemblyExpert
+from policy_composer.tasks.gear_assembly.kinematics import HandToPeg
 from policy_composer.tasks.gear_assembly.spec import CAMERA_NAMES, CONTROL_FREQ, STATE_NAMES
 
 
@@ -57,8 +65,6 @@ def test_same_seed_same_state_different_seeds_differ(state_env):
 def test_an_episode_does_not_depend_on_the_episodes_before_it(state_env):
     """The same seed and actions give the same states whatever ran before the reset (ManiSkill's determinism
     check, across episodes): nothing of the physics survives a reset."""
-    from policy_composer.tasks.gear_assembly.expert import GearAssemblyExpert
-
     def states(seed, steps=40):
         obs, _ = state_env.reset(seed=seed)
         u, expert = state_env.unwrapped, GearAssemblyExpert(state_env)
@@ -86,9 +92,6 @@ def test_evaluate_reports_the_subtask_flags_and_stage(state_env):
 def test_a_gear_turned_on_its_edge_on_the_peg_is_not_inserted(state_env, tilt_deg, inserted):
     """Half-way down the peg, a gear counts as inserted only with its axis along the peg's: one caught on the peg
     turned on its edge has not gone down it (and a release guard must not let it go there)."""
-    from mani_skill.utils.structs.pose import Pose
-    from transforms3d.euler import euler2quat
-
     state_env.reset(seed=0)
     u = state_env.unwrapped
     in_peg = Pose.create_from_pq(p=[0.002, 0.0, u.gear_spec.peg_height / 2],
@@ -103,8 +106,6 @@ def test_the_pre_insertion_start_holds_the_gear_above_the_peg_off_centre(state_e
     """reset(options={"start": "pre_insertion"}) gives the insertion's start state without the pick-up: the gear
     held (not resting on anything), its centre off the fingers' centre by the drawn grasp offset, the hand above the
     peg; the same seed gives the same state, and the expert inserts from there."""
-    from policy_composer.tasks.gear_assembly.expert import GearAssemblyExpert
-
     u = state_env.unwrapped
     offsets, at_peg = [], 0
     for seed in range(4, 8):
@@ -167,9 +168,6 @@ def test_bad_configuration_names_the_problem_and_the_choices(kwargs, message):
 def test_the_package_import_registers_the_env_and_none_is_the_default_control_mode():
     """As with ManiSkill's own tasks: `import policy_composer.tasks` is enough for gym.make (the simulator loads only
     then), and control_mode=None, which ManiSkill's example scripts pass, means the task's default."""
-    import subprocess
-    import sys
-
     code = ("import sys, gymnasium as gym, policy_composer.tasks\n"
             "assert 'mani_skill' not in sys.modules\n"
             "env = gym.make('GearAssembly-v1', obs_mode='state_dict', control_mode=None)\n"
@@ -187,8 +185,6 @@ def test_flat_action_of_the_wrong_size_is_refused(state_env):
 
 def test_the_right_forearm_camera_sees_the_gear_come_down_onto_the_peg(rgb_env):
     """Its goal score can only learn the insertion if the gear enters its view (the hand hid it at first)."""
-    from policy_composer.tasks.gear_assembly.expert import GearAssemblyExpert
-
     u = rgb_env.unwrapped
     obs, _ = rgb_env.reset(seed=0)
     expert = GearAssemblyExpert(rgb_env)
@@ -206,8 +202,6 @@ def test_the_right_forearm_camera_sees_the_gear_come_down_onto_the_peg(rgb_env):
 def test_the_expert_s_unrecorded_pick_up_renders_nothing_but_the_start_state(rgb_env, monkeypatch):
     """A controller's start state after the expert's pick-up (Table I's move column, the move's rollouts) is stepped
     without observations: one render, at the end; the physics is that of env.step's (the same state)."""
-    from policy_composer.app.starts import start_state
-
     u = rgb_env.unwrapped
     renders = []
     get_obs = u.get_obs
@@ -227,8 +221,6 @@ def test_the_robot_knows_its_hand_over_the_peg_from_its_joints(state_env):
     """What the predicate classifiers get besides the cameras: the left hand relative to the peg's top from both arms'
     joint angles (forward kinematics and the peg module's place in the right hand) is where the simulator has it, at
     the start, on the way down and off to the side."""
-    from policy_composer.tasks.gear_assembly.kinematics import HandToPeg
-
     u = state_env.unwrapped
     hand_to_peg = HandToPeg(u.gear_spec)
     for seed, start in ((0, None), (1, "pre_insertion")):

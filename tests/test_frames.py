@@ -8,17 +8,22 @@ import sys
 import time
 from pathlib import Path
 
+import av
 import gymnasium as gym
+import lerobot.datasets.compute_stats as compute_stats  # the encoder thread imports its helper from here
 import numpy as np
 import pytest
 import torch
 from conftest import run_cli, tree_digest
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+from policy_composer.app.demo import _verify_dataset
 from policy_composer.app.pipeline import MARKER, Stage, run_stages
 from policy_composer.data import recorder
-from policy_composer.data.features import DatasetError, image_key, open_dataset, read_info, video_frames
+from policy_composer.data.features import DatasetError, image_key, read_info
 from policy_composer.data.frames import load_frames, to_model_image
 from policy_composer.data.recorder import FrameBuffer, LeRobotWriter
+from policy_composer.data.verify import open_dataset, video_frames
 from policy_composer.tasks.gear_assembly.expert import GearAssemblyExpert
 from policy_composer.tasks.gear_assembly.spec import CAMERA_NAMES
 
@@ -96,8 +101,6 @@ def test_a_buffered_frame_holds_the_image_state_and_action_of_one_step(episode):
 def slow_encoder(monkeypatch, seconds: float = 0.15) -> None:
     """lerobot's encoder threads take `seconds` a frame (more than its 0.1 s wait before dropping one), as on a CPU
     shared with other work."""
-    import lerobot.datasets.compute_stats as compute_stats  # the encoder thread imports its helper from here
-
     real = compute_stats.auto_downsample_height_width
     monkeypatch.setattr(compute_stats, "auto_downsample_height_width",
                         lambda image: (time.sleep(seconds), real(image))[1])
@@ -133,14 +136,12 @@ def test_a_slow_encoder_loses_no_frame_and_image_i_is_state_i(tmp_path, monkeypa
 def test_a_lossy_encoder_is_caught_before_the_episode_is_committed(tmp_path, monkeypatch, episode):
     """lerobot's own real-time encoder under the same load drops frames: the check refuses the episode and the
     dataset stays as it was before it."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
     root = tmp_path / "lossy"
     frames, _, _ = episode
     writer(root, queue_size=30).save_episode(frames, success=False, seed=3)
     before = tree_digest(root)
     slow_encoder(monkeypatch)
-    monkeypatch.setattr(recorder, "_lossless_dataset_class", lambda: LeRobotDataset)
+    monkeypatch.setattr(recorder, "LosslessDataset", LeRobotDataset)
     with pytest.raises(DatasetError, match=r"episode 1 was not saved.*camera head: .* \d+ frames for 30 steps"):
         writer(root, resume=True).save_episode(frames, success=False, seed=4)
     assert tree_digest(root) == before
@@ -149,8 +150,6 @@ def test_a_lossy_encoder_is_caught_before_the_episode_is_committed(tmp_path, mon
 
 def drop_last_frame(video: Path) -> None:
     """Re-encode `video` without its last frame, as a recorder that dropped one would have written it."""
-    import av
-
     with av.open(str(video)) as src:
         frames = [f.to_ndarray(format="rgb24") for f in src.decode(video=0)]
         rate = src.streams.video[0].average_rate
@@ -189,8 +188,6 @@ def test_every_reader_refuses_a_video_one_frame_short(damaged):
 
 def test_a_reused_stage_with_a_damaged_dataset_is_made_again(damaged, insertion_demos, tmp_path):
     """The main job's check of a finished recording stage: named, made again, and the stage reading it too."""
-    from policy_composer.app.demo import _verify_dataset
-
     root, _ = damaged
     calls, lines = [], []
 
@@ -218,8 +215,6 @@ def test_a_reused_stage_with_a_damaged_dataset_is_made_again(damaged, insertion_
 def test_a_window_is_cut_at_the_images_own_resolution():
     """The insertion's window keeps the pixels it covers: a 128 px image's 64 px window, at 64, is those pixels
     untouched, not a resampling of the whole image."""
-    import torch
-
     image = torch.randint(0, 256, (1, 128, 128, 3), dtype=torch.uint8)
     window = (0.1875, 0.28125, 0.5)
     cut = to_model_image(image, 64, window)

@@ -9,21 +9,26 @@ import pytest
 import sapien
 import torch
 from conftest import run_cli
+from lerobot.configs.policies import PreTrainedConfig
+from lerobot.policies.factory import get_policy_class, make_pre_post_processors
 from transforms3d.quaternions import quat2mat
 
 from policy_composer.app.record import record_recipe
 from policy_composer.app.starts import start_state
-from policy_composer.data.features import open_dataset, read_sidecar
+from policy_composer.data.features import read_sidecar
 from policy_composer.data.frames import load_frames, to_model_image
 from policy_composer.data.recipes import RecipeError, load_recipe
 from policy_composer.data.recorder import FrameBuffer
+from policy_composer.data.verify import open_dataset
 from policy_composer.learning.training import fit_epochs
+from policy_composer.policies.arm import Outcome, run_activation
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
-from policy_composer.policies.cnn.controller import CNNController, hand_step
+from policy_composer.policies.cnn.controller import MAX_LEAD, CNNController, hand_step
 from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
 from policy_composer.policies.cnn.train import (
     CheckpointError,
     action_target,
+    load_cnn_library,
     load_cnn_policy,
     load_demonstrations,
     policy_state,
@@ -151,9 +156,6 @@ def test_a_bfloat16_training_runs_only_the_convolutions_in_bfloat16_and_acts_in_
 def test_pick_and_move_policies_learn_their_stages_of_the_transport_demos(transport_demos, tmp_path):
     """A transport demonstration ends at the pre-insertion pose (nothing after it is simulated); the pick-up policy
     learns its frames before the lift, the move policy the carry; the library's CNN model is a folder of them."""
-    from policy_composer.data.frames import load_frames
-    from policy_composer.policies.cnn.train import load_cnn_library
-
     sidecar = read_sidecar(transport_demos)
     assert all(e["success"] for e in sidecar["episodes"]), sidecar["episodes"]
     frames = load_frames(transport_demos, ("left_forearm",), 32, progress=False)
@@ -241,9 +243,6 @@ def test_a_policy_pushing_against_the_table_keeps_its_command_near_the_hand(rgb_
     """A pick-up trained on 20 demonstrations pressed down beside the gear and wound its command up, 5 mm a step,
     until joint 2 passed its limit (a safety stop): the command now stays within MAX_LEAD of the measured TCP, so
     the same policy runs out of steps instead, within the joints' limits."""
-    from policy_composer.policies.arm import Outcome, run_activation
-    from policy_composer.policies.cnn.controller import MAX_LEAD
-
     class PressesDown:  # the policy's interface: config and act(image, state) -> (1, 4)
         config = CNNPolicyConfig(subtask="pick", image_size=32, max_steps=100)  # its controller's step limit
 
@@ -361,9 +360,6 @@ def test_a_lerobot_controller_commands_what_the_policy_selects(policy, rgb_env, 
     """The controller's command is LeRobot's own pipeline on the same observation, loaded afresh: the checkpoint's
     preprocessor, `select_action`, its postprocessor, and the left arm's entries of the 16-D action (0-6, gripper 7).
     A dropped postprocessor or another slice of the action would differ: the test checks that they do."""
-    from lerobot.configs.policies import PreTrainedConfig
-    from lerobot.policies.factory import get_policy_class, make_pre_post_processors
-
     checkpoint, _ = request.getfixturevalue(f"{policy}_checkpoint")
     controller = LeRobotPolicyController(rgb_env, checkpoint, max_steps=3)
     obs = start_state(rgb_env, 3, "insert")

@@ -13,7 +13,11 @@ import av
 import numpy as np
 import pytest
 from conftest import lerobot, run_cli
+from lerobot.envs.utils import preprocess_observation
+from lerobot_env_gear_assembly import GearAssemblyEnv
+from rerun.experimental import RrdReader
 
+from policy_composer.tasks.gear_assembly.expert import GearAssemblyExpert
 from policy_composer.tasks.gear_assembly.lerobot_env import TASKS, GearAssemblyLeRobotEnv
 from policy_composer.tasks.gear_assembly.spec import CAMERA_NAMES
 
@@ -28,10 +32,6 @@ def insert_env():
 def test_observations_and_success_in_lerobots_conventions(insert_env):
     """LeRobot's preprocessing turns the env's observation into our datasets' feature names, and `is_success` turns
     true when the demonstrator seats the gear."""
-    from lerobot.envs.utils import preprocess_observation
-
-    from policy_composer.tasks.gear_assembly.expert import GearAssemblyExpert
-
     obs, info = insert_env.reset(seed=3)
     assert insert_env.observation_space.contains(obs) and info == {"is_success": False}
     batch = preprocess_observation({"pixels": {c: im[None] for c, im in obs["pixels"].items()},
@@ -96,8 +96,6 @@ def test_lerobot_eval_runs_a_checkpoint_trained_on_our_dataset(act_checkpoint, t
 def test_lerobot_eval_says_when_the_policy_was_trained_on_other_images(act_checkpoint, monkeypatch, caplog):
     """A checkpoint trained on 64-px images, evaluated on 128-px ones: the plugin says so, with the fix, before the
     run (it reads lerobot-eval's --policy.path the way lerobot does)."""
-    from lerobot_env_gear_assembly import GearAssemblyEnv
-
     checkpoint, _ = act_checkpoint
     assert GearAssemblyEnv(resolution=64).policy_mismatches(checkpoint) == []
     assert GearAssemblyEnv(resolution=64, cameras=["head"]).policy_mismatches(checkpoint) == [
@@ -111,8 +109,6 @@ def test_lerobot_eval_says_when_the_policy_was_trained_on_other_images(act_check
 
 
 def recorded_entities(rrd: Path) -> set[str]:
-    from rerun.experimental import RrdReader
-
     return {str(c.entity_path) for c in RrdReader(rrd).store().schema().component_columns()}
 
 

@@ -9,14 +9,18 @@ import pytest
 import sapien
 import torch
 from mani_skill.utils.structs.pose import Pose
+from torch import nn
 from transforms3d.euler import euler2quat
 from transforms3d.quaternions import qmult
 
+import policy_composer.tasks.gear_assembly.subtasks as subtasks
+from policy_composer.app.starts import start_state
 from policy_composer.policies.arm import (
     STEP_SPEED_MARGIN,
     Outcome,
     ScriptedController,
     Segment,
+    ramp,
     run_activation,
 )
 from policy_composer.policies.base import InitiationError
@@ -33,13 +37,16 @@ from policy_composer.policies.mp.planning import (
 from policy_composer.policies.registry import LibraryError
 from policy_composer.policies.senses import CachedSenses, OracleSenses, Percept
 from policy_composer.policies.subtasks import CONFIRM_STEPS, LearnedController
+from policy_composer.selector.configuration import PredicateConfig
+from policy_composer.selector.predicates import LearnedSenses, PredicateModel
 from policy_composer.tasks.base import np0
-from policy_composer.tasks.gear_assembly.env import LEFT_START_QPOS
-from policy_composer.tasks.gear_assembly.kinematics import LEFT_BASE
+from policy_composer.tasks.gear_assembly.env import INSERT_TILT_DEG, LEFT_START_QPOS, OFF_COURSE_RADIUS
+from policy_composer.tasks.gear_assembly.expert import GearAssemblyExpert
+from policy_composer.tasks.gear_assembly.kinematics import LEFT_BASE, LeftArmIK
 from policy_composer.tasks.gear_assembly.scene import GearScene
 from policy_composer.tasks.gear_assembly.spec import PREDICATES
 from policy_composer.tasks.gear_assembly.subtasks import INSERTIONS, SUBTASKS, Insert
-from policy_composer.tasks.panda import GRIPPER_OPEN, hand_down_quat
+from policy_composer.tasks.panda import GRIPPER_OPEN, JOINT_HIGH, JOINT_LOW, hand_down_quat
 
 
 def truth(controller) -> dict:
@@ -313,8 +320,6 @@ def test_a_learned_insertion_that_leads_the_gear_away_backs_off_with_it(state_en
     """The insertion's termination condition: a policy that carries the gear away from the peg (as a badly trained
     CNN did, 38 mm off and down beside the peg) is stopped once it is off course and brings the gear back to the
     pre-insertion pose, still holding it; one that merely runs out of steps holding the gear off the peg does too."""
-    from policy_composer.tasks.gear_assembly.env import OFF_COURSE_RADIUS
-
     for max_steps, reason in ((60, "the gear was tipped or led away from the peg"),
                               (2, "it stopped with the gear in the hand")):
         obs, _ = state_env.reset(seed=7, options={"start": "pre_insertion"})
@@ -329,8 +334,6 @@ def test_a_learned_insertion_that_leads_the_gear_away_backs_off_with_it(state_en
 
 def test_an_insertion_letting_go_part_way_down_the_peg_backs_off_instead(state_env, monkeypatch):
     """The CNN let go of gears 3 mm below the peg's top, where they stuck: the release guard wants the gear down."""
-    import policy_composer.tasks.gear_assembly.subtasks as subtasks
-
     monkeypatch.setattr(subtasks, "RELEASE_HEIGHT", 0.030)  # this insertion opens the gripper 30 mm above the plate
     obs, _ = state_env.reset(seed=0, options={"start": "pre_insertion"})
     insert = MotionPlanningController(state_env, SUBTASKS["insert"])
@@ -345,8 +348,6 @@ def test_a_back_off_from_commands_the_arm_could_not_follow_ramps_instead_of_stop
     """A policy pressing the gear against the peg leaves its commands ahead of the arm (the CNN's were, by 2.3 rad/s
     at joint 2): the back-off starts from the measured joints, so its targets first go back there at a safe speed;
     jumping there was a safety stop that left the gear turned over in the fingers."""
-    from policy_composer.policies.arm import ramp
-
     class Pressed(Insert):  # the insertion is off course from the first step on
         def off_course(self, scene, finished):
             return "pressed against the peg"
@@ -373,8 +374,6 @@ def test_a_learned_pick_up_and_move_end_holding_the_gear_once_achieved(state_env
     insertion ends only once the hand has let go): stand-ins that follow the scripted expert's commands stop at the
     lift and at the pre-insertion pose (once it has been sensed for CONFIRM_STEPS steps, in which the expert may have
     begun its next phase), not at their step budget."""
-    from policy_composer.tasks.gear_assembly.expert import GearAssemblyExpert
-
     class FollowsExpert(LearnedController):
         def predict(self, obs):
             action = expert.act(obs)
@@ -396,9 +395,6 @@ def test_a_move_needs_the_gear_level_and_near_the_fingers_centre(state_env):
     """The moves' initiation set: a gear held lifted, level and within the pre-insertion tolerance of the fingers'
     centre. Tipped or pushed along the fingers (as a CNN insertion's back-offs left it), no move can bring it to the
     pre-insertion pose; only the re-grasp may start."""
-    from policy_composer.app.starts import start_state
-    from policy_composer.tasks.gear_assembly.env import INSERT_TILT_DEG
-
     obs = start_state(state_env, 2, "move")
     percept = OracleSenses(state_env)(obs)
     assert SUBTASKS["move"].can_start(percept) and SUBTASKS["regrasp"].can_start(percept)
@@ -477,9 +473,6 @@ def test_a_learned_controller_stops_before_a_command_into_the_right_arm(state_en
 def test_the_goal_pose_is_found_from_an_arm_left_contorted(state_env):
     """The moves' goal configuration (the hand down at the pre-insertion pose) is solved for from the measured joints;
     where the solver finds none from there, from the rest configuration."""
-    from policy_composer.tasks.gear_assembly.kinematics import LeftArmIK
-    from policy_composer.tasks.panda import JOINT_HIGH, JOINT_LOW
-
     state_env.reset(seed=0)
     ik, scene = LeftArmIK(state_env), GearScene(state_env)
     contorted = np.concatenate([JOINT_LOW + 0.05, [0.04, 0.04]])
@@ -517,8 +510,6 @@ class Scripted(CachedSenses):
 def test_a_learned_controller_stops_on_its_step_budget(state_env):
     """A learned policy that never gets its subtask done stops when its step budget is spent (the paper's CNN had 50
     steps), and its activation fails saying so and what it sensed."""
-    from policy_composer.app.starts import start_state
-
     obs = start_state(state_env, 2, "move")
     stays = Stays(state_env, SUBTASKS["move"], "stays_move", max_steps=3)
     run_activation(state_env, stays, obs, seed=2)
@@ -530,8 +521,6 @@ def test_a_learned_controller_stops_on_its_step_budget(state_env):
 def test_a_learned_controller_stops_once_its_termination_is_sensed_steps_in_a_row(state_env):
     """One frame's percept does not end an activation: the termination must be sensed CONFIRM_STEPS observations in a
     row, and a frame that says otherwise starts the count again."""
-    from policy_composer.app.starts import start_state
-
     assert CONFIRM_STEPS == 3
     obs = start_state(state_env, 2, "move")
     stays = Stays(state_env, SUBTASKS["move"], "stays_move", max_steps=50)
@@ -543,12 +532,6 @@ def test_a_learned_controller_stops_once_its_termination_is_sensed_steps_in_a_ro
 def test_kinematics_rule_out_a_held_gear_at_the_peg_where_the_hand_is_not(state_env):
     """Classifiers that say yes to everything still sense a held gear neither at the pre-insertion pose nor on the
     peg where the hand, by both arms' kinematics, is farther from the peg's axis than a grasped gear can be."""
-    from torch import nn
-
-    from policy_composer.app.starts import start_state
-    from policy_composer.selector.configuration import PredicateConfig
-    from policy_composer.selector.predicates import LearnedSenses, PredicateModel
-
     def sure(name: str) -> PredicateModel:
         model = PredicateModel(PredicateConfig(predicate=name, image_size=32))
         nn.init.zeros_(model.head[-1].weight)

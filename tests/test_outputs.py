@@ -8,9 +8,24 @@ import json
 import shutil
 from pathlib import Path
 
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
+import safetensors.torch
+import torch
 from conftest import run_cli, tree_digest
 from test_writers import holder, one_line_error, small_disk
+
+from policy_composer.app.record import first_seed_of
+from policy_composer.data.features import read_sidecar
+from policy_composer.learning.checkpoint import CheckpointError, save_checkpoint, weights_id
+from policy_composer.learning.training import TrainingDiverged
+from policy_composer.policies.cnn import train
+from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
+from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
+from policy_composer.policies.cnn.train import load_cnn_policy, train_cnn_policy
+from policy_composer.selector.configuration import VAEConfig
+from policy_composer.selector.vae import VAE
 
 TINY = ("--epochs", "1", "--mixtures", "2", "--image-size", "32", "--batch-size", "32")
 
@@ -25,10 +40,6 @@ def _train(dataset: Path, out: Path, *more: str):
 
 def _cnn_checkpoint(folder: Path, **changes) -> Path:
     """A real (untrained) CNN policy checkpoint at 32 px."""
-    from policy_composer.learning.checkpoint import save_checkpoint
-    from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
-    from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
-
     config = CNNPolicyConfig(image_size=32, num_mixtures=2, **changes)
     save_checkpoint(CNNPolicy(config), config, folder)
     return folder
@@ -38,10 +49,6 @@ def _cnn_checkpoint(folder: Path, **changes) -> Path:
 def test_train_policy_does_not_replace_a_folder_it_did_not_write(insertion_demos, tmp_path, what):
     """--out on a LeRobot dataset, on a folder of the user's notes, or on another kind of model: refused before the
     training, the folder as it was. A checkpoint of its own kind is replaced (retraining into one place)."""
-    from policy_composer.learning.checkpoint import save_checkpoint
-    from policy_composer.selector.configuration import VAEConfig
-    from policy_composer.selector.vae import VAE
-
     out = tmp_path / "out"
     if what == "dataset":
         _copy(insertion_demos, out)
@@ -76,9 +83,6 @@ def test_a_second_training_into_one_folder_is_refused_at_once(insertion_demos, t
 def _with_value(dataset: Path, column: str, value: float) -> Path:
     """The dataset with one value of a numeric column replaced, its digest updated as a recording that wrote the
     value would have it."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
     path = sorted((dataset / "data").rglob("*.parquet"))[0]
     table = pq.read_table(path)
     rows = table.column(column).to_pylist()
@@ -107,13 +111,6 @@ def test_a_non_finite_value_is_refused_where_it_enters(insertion_demos, tmp_path
 
 
 def test_a_training_that_diverges_stops_and_saves_nothing(insertion_demos, tmp_path, monkeypatch):
-    import torch
-
-    from policy_composer.learning.training import TrainingDiverged
-    from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
-    from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
-    from policy_composer.policies.cnn.train import train_cnn_policy
-
     loss = CNNPolicy.loss
     monkeypatch.setattr(CNNPolicy, "loss", lambda self, *a: loss(self, *a) * torch.tensor(float("nan")))
     config = CNNPolicyConfig(epochs=2, num_mixtures=2, image_size=32, batch_size=32)
@@ -145,9 +142,6 @@ def test_dagger_refuses_a_policy_of_another_subtask_in_the_insertions_place(tmp_
 def test_a_model_is_what_its_files_say(tmp_path):
     """config.json edited after the training (another image size) is refused where the model loads, and the model's
     id covers its configuration as well as its weights."""
-    from policy_composer.learning.checkpoint import CheckpointError, weights_id
-    from policy_composer.policies.cnn.train import load_cnn_policy
-
     folder = _cnn_checkpoint(tmp_path / "cnn")
     trained = weights_id(folder)
     config = json.loads((folder / "config.json").read_text())
@@ -165,9 +159,6 @@ def test_a_model_is_what_its_files_say(tmp_path):
 def test_resume_takes_the_command_that_began_the_dataset(insertion_demos, tmp_path):
     """`--resume` with the dataset's own first seed (the habit LeRobot's recorder teaches) continues it; another
     seed is refused, naming both."""
-    from policy_composer.app.record import first_seed_of
-    from policy_composer.data.features import read_sidecar
-
     root = _copy(insertion_demos, tmp_path / "demos")
     first = first_seed_of(read_sidecar(root))
     before = tree_digest(root)
@@ -181,8 +172,6 @@ def test_resume_takes_the_command_that_began_the_dataset(insertion_demos, tmp_pa
 
 
 def test_a_read_only_out_is_refused_before_the_training(insertion_demos, tmp_path, monkeypatch):
-    from policy_composer.policies.cnn import train
-
     monkeypatch.setattr(train, "load_demonstrations", lambda *a, **k: pytest.fail("the training began"))
     with small_disk(tmp_path / "ro", "1m", read_only=True, fallback="test_a_read_only_folder_is_one_line") as disk:
         line = one_line_error(_train(insertion_demos, disk / "cnn"))
@@ -207,8 +196,6 @@ def test_a_full_disk_at_the_save_is_one_line_and_the_old_model_stays(insertion_d
 def test_a_save_that_runs_out_of_room_is_one_line(insertion_demos, tmp_path, monkeypatch):
     """The full disk's path without a small disk: safetensors fails as it does on one (its own error, the OS's code
     in its text)."""
-    import safetensors.torch
-
     def full(*args, **kwargs):
         raise safetensors.SafetensorError("Error while serializing: I/O error: No space left on device (os error 28)")
 

@@ -19,8 +19,14 @@ from pathlib import Path
 import pytest
 from conftest import run_cli
 
-from policy_composer.app.pipeline import MARKER, Stage, run_stages
+from policy_composer.app.demo import _train_cnn
+from policy_composer.app.pipeline import MARKER, Stage, StageRecord, run_stages
+from policy_composer.app.profiles import PROFILES
+from policy_composer.app.report import _header
 from policy_composer.data.interrupt import flag_interrupts
+from policy_composer.learning.checkpoint import weights_id
+from policy_composer.policies.cnn import train
+from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 from policy_composer.tasks.registry import get_spec
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -122,11 +128,6 @@ def test_a_stage_reading_a_missing_stage_is_refused(tmp_path):
 
 def test_an_interrupted_cnn_training_stage_keeps_the_policies_it_finished(insertion_demos, transport_demos,
                                                                          tmp_path, monkeypatch):
-    from policy_composer.app.demo import _train_cnn
-    from policy_composer.learning.checkpoint import weights_id
-    from policy_composer.policies.cnn import train
-    from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
-
     inputs = {}
     for stage, dataset in (("insertion-demos", insertion_demos), ("transport-demos", transport_demos)):
         (tmp_path / stage).mkdir()
@@ -288,10 +289,6 @@ def test_the_main_job_runs_every_stage_reuses_them_and_writes_a_report_a_browser
 
 def test_the_report_states_only_its_own_runs_figures(tmp_path):
     """Figures other runs measured are not written into a report as its own: they are named, dated and linked."""
-    from policy_composer.app.demo import PROFILES
-    from policy_composer.app.pipeline import StageRecord
-    from policy_composer.app.report import _header
-
     out = tmp_path / "results"
     records = {"compose": StageRecord("compose", "compose", "k", out / "pipeline" / "compose-k", 60.0, False)}
     header = _header(PROFILES["quick"], records, 60.0, out, get_spec("gear-assembly"))

@@ -7,9 +7,12 @@ import importlib.metadata
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
+import time
 from dataclasses import replace
+from importlib.metadata import version
 from pathlib import Path
 
 import gymnasium as gym
@@ -18,15 +21,18 @@ import psutil
 import pytest
 import torch
 from conftest import run_cli, tree_digest
+from lerobot.datasets.dataset_tools import delete_episodes
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from test_frames import Stamped, read_stamp
 
 import policy_composer.tasks.gear_assembly.env  # noqa: F401  (registers GearAssembly-v1)
 from policy_composer.app.record import record_recipe
 from policy_composer.data import journal
 from policy_composer.data.catalog import HubUnreachable, card_fields, drop_controller, push_dataset, summarize
-from policy_composer.data.features import LEROBOT_VERSION, DatasetError, open_dataset
+from policy_composer.data.features import LEROBOT_VERSION, DatasetError
 from policy_composer.data.recipes import RecipeError, available_recipes, load_recipe
 from policy_composer.data.recorder import LeRobotRecorder
+from policy_composer.data.verify import open_dataset
 from policy_composer.learning.checkpoint import CheckpointError
 from policy_composer.policies.library import LeRobotSource, LibraryError, LibrarySources
 from policy_composer.tasks.gear_assembly.expert import ExpertConfig, GearAssemblyExpert
@@ -139,8 +145,6 @@ def test_dataset_info_and_push_without_network(insertion_demos, monkeypatch):
     with pytest.raises(ValueError, match="USER/NAME"):
         push_dataset(insertion_demos, "no-slash")
     # Reachable hub: the command hands the local dataset to LeRobotDataset.push_to_hub under the new repo id.
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
     calls = []
     monkeypatch.setattr("policy_composer.data.catalog._check_hub_reachable", lambda root: None)
     monkeypatch.setattr(LeRobotDataset, "push_to_hub", lambda self, **kw: calls.append((self.repo_id, self.root, kw)))
@@ -156,8 +160,6 @@ def test_dataset_info_and_push_without_network(insertion_demos, monkeypatch):
 def test_the_dataset_card_says_what_the_dataset_holds(insertion_demos, tmp_path):
     """The card `dataset push` uploads, built and checked offline: LeRobot's card with the recipe, the task, the
     cameras, what the labels mean, the success rate and the project version."""
-    from importlib.metadata import version
-
     out = tmp_path / "README.md"
     res = run_cli("dataset", "card", str(insertion_demos), "--repo-id", "me/gears", "--out", str(out))
     assert res.returncode == 0, res.stderr
@@ -277,8 +279,6 @@ def test_a_lerobot_policys_rollouts_record_with_the_cameras_it_reads(act_checkpo
 
 
 def test_dropping_a_controllers_rollouts_keeps_the_others(controller_rollouts, tmp_path):
-    import shutil
-
     root = tmp_path / "rollouts"
     shutil.copytree(controller_rollouts, root)
     before = open_dataset(root)
@@ -295,8 +295,6 @@ def test_dropping_a_controllers_rollouts_keeps_the_others(controller_rollouts, t
 
 
 def test_journal_rolls_back_an_unfinished_save(insertion_demos, tmp_path):
-    import shutil
-
     root = tmp_path / "copy"
     shutil.copytree(insertion_demos, root)
     before = tree_digest(root)
@@ -320,8 +318,6 @@ def _record_cmd(root: Path, episodes: int, *extra: str) -> list[str]:
 
 
 def _wait_for_episodes(proc: subprocess.Popen, root: Path, n: int, timeout: float = 300) -> None:
-    import time
-
     sidecar = root / "meta" / "policy_composer.json"
     t0 = time.time()
     while time.time() - t0 < timeout:
@@ -341,8 +337,6 @@ def test_interrupted_recording_keeps_finished_episodes_and_resumes(insertion_dem
     """Killed or stopped after its first episode, a recording (on one process or several) keeps that episode, and
     resumed, it records what an uninterrupted serial recording of the same settings (the insertion_demos fixture)
     does, frame for frame."""
-    import signal
-
     root = tmp_path / "demos"
     env = {**os.environ, "HF_HUB_OFFLINE": "1"}
     # The recorder as a foreground process would run: a child inherits an ignored SIGINT (as background jobs
@@ -402,8 +396,6 @@ def test_a_demonstration_dataset_is_told_by_its_controller(insertion_demos):
 def test_a_dataset_edited_by_lerobot_says_what_it_lost(insertion_demos, tmp_path):
     """lerobot-edit-dataset writes a new dataset without the project's metadata: it loads, and `dataset info`, the
     card and `dataset drop` say what is unknown instead of dropping lines or claiming what they cannot know."""
-    from lerobot.datasets.dataset_tools import delete_episodes
-
     edited = tmp_path / "edited"
     delete_episodes(open_dataset(insertion_demos), [0], output_dir=edited)
     assert open_dataset(edited).num_episodes == 1
@@ -418,8 +410,6 @@ def test_a_dataset_edited_by_lerobot_says_what_it_lost(insertion_demos, tmp_path
 
 def test_the_card_of_a_dataset_recorded_elsewhere_describes_only_what_it_holds(tmp_path):
     """A 7-D, one-camera LeRobot dataset this project did not record: the card claims no task, arms or labels."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
     root = tmp_path / "so100"
     features = {"observation.images.front": {"dtype": "video", "shape": (32, 32, 3),
                                              "names": ["height", "width", "channels"]},

@@ -3,7 +3,10 @@ command line (docs/adding-a-controller.md's wiggle kind, registered on its confi
 
 from __future__ import annotations
 
+import importlib
+import re
 from dataclasses import dataclass
+from pathlib import Path
 
 import pytest
 
@@ -80,10 +83,6 @@ def test_one_registration_reaches_every_reader(wiggle, state_env, tmp_path):
 def test_the_documented_kind_runs_as_written(state_env, tmp_path, monkeypatch):
     """docs/adding-a-controller.md's wiggle kind, its two files copied out of the page: registered on its config, its
     controller module found beside it by convention, built with the config's defaults."""
-    import importlib
-    import re
-    from pathlib import Path
-
     page = (Path(__file__).resolve().parents[1] / "docs" / "adding-a-controller.md").read_text()
     package = tmp_path / "wiggle_kind"
     package.mkdir()

@@ -4,6 +4,7 @@ datasets; mismatched checkpoints are refused; a composed episode runs end to end
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import replace
 from pathlib import Path
 from unittest.mock import ANY
@@ -11,25 +12,52 @@ from unittest.mock import ANY
 import gymnasium as gym
 import pytest
 import torch
+from conftest import run_cli, tree_digest
+from safetensors.torch import load_file, save_file
+from test_outputs import _cnn_checkpoint
+from test_writers import one_line_error
 
-from policy_composer.app.composition import back_offs, served_table, summary
+from policy_composer.app.composition import (
+    RunError,
+    back_offs,
+    check_out,
+    compose_library,
+    load_episodes,
+    served_table,
+    summary,
+)
 from policy_composer.data.features import image_key
 from policy_composer.data.frames import load_frames
-from policy_composer.learning.checkpoint import CheckpointError
+from policy_composer.learning.checkpoint import CheckpointError, save_checkpoint
 from policy_composer.policies.library import LibrarySources, build_library
+from policy_composer.policies.senses import OracleSenses
 from policy_composer.selector.compose import Activation, ComposedEpisode, Eligibility, compose_episode
 from policy_composer.selector.configuration import (
     ComposeConfig,
     DynamicsConfig,
     GoalScoreConfig,
+    LatentGoalScoreConfig,
     PredicateConfig,
     VAEConfig,
 )
+from policy_composer.selector.core import Selector
 from policy_composer.selector.dynamics import load_dynamics, prediction_error, train_dynamics, transition_pairs
 from policy_composer.selector.evaluate import evaluate_goal_scores
-from policy_composer.selector.goal_score import goal_score_metrics
-from policy_composer.selector.train import train_goal_scores, train_predicate_models, train_world_model
+from policy_composer.selector.goal_score import LatentGoalScoreModel, goal_score_metrics
+from policy_composer.selector.predicates import (
+    held_out,
+    load_predicates,
+    predicate_metrics,
+    proprioception,
+    stacked,
+)
+from policy_composer.selector.train import posteriors, train_goal_scores, train_predicate_models, train_world_model
+from policy_composer.selector.vae import train_vae
 from policy_composer.selector.world_model import GearWorldModel
+from policy_composer.tasks.gear_assembly.expert import GearAssemblyExpert
+from policy_composer.tasks.gear_assembly.spec import PREDICATES
+from policy_composer.tasks.gear_assembly.subtasks import SUBTASKS
+from policy_composer.tasks.gear_assembly.task import TASK
 
 SIZE = 32
 WORLD_CONFIGS = (VAEConfig(image_size=SIZE, latent_dim=8, epochs=8, batch_size=32),
@@ -128,10 +156,6 @@ def test_mismatched_checkpoints_are_refused(world, tmp_path):
 def test_parts_not_trained_together_are_refused(world, controller_rollouts, tmp_path):
     """A VAE trained again (as by a `train world-model` cut short after it) is not used with the dynamics models and
     goal score of the old one, and a dynamics model is not used with another model's controller."""
-    import shutil
-
-    from policy_composer.selector.vae import train_vae
-
     root = Path(shutil.copytree(world[0], tmp_path / "world"))
     dynamics = root / "dynamics" / "mp_insert" / "config.json"
     config = json.loads(dynamics.read_text())
@@ -154,10 +178,6 @@ def test_a_world_model_training_cut_short_goes_on_where_it_stopped(world, contro
                                                                    tmp_path):
     """With `resume` (the main job's world-model stage) the models already trained at their configuration are kept
     and only the missing ones train; a model of another configuration trains again."""
-    import shutil
-
-    from conftest import tree_digest
-
     root = Path(shutil.copytree(world[0], tmp_path / "world"))
     for part in ("dynamics/mp_insert", "goal_score/head"):  # not yet trained when the run was stopped
         shutil.rmtree(root / part)
@@ -176,12 +196,6 @@ def test_a_world_model_training_cut_short_goes_on_where_it_stopped(world, contro
 def test_a_checkpoint_is_replaced_whole_or_not_at_all(world, tmp_path):
     """A save that fails half-way (here: a training log that cannot be written) leaves the old checkpoint as it was
     and no partial folder behind."""
-    import shutil
-
-    from conftest import tree_digest
-
-    from policy_composer.learning.checkpoint import save_checkpoint
-
     folder = Path(shutil.copytree(world[0] / "dynamics" / "mp_pick", tmp_path / "mp_pick"))
     before = tree_digest(folder)
     model = load_dynamics(folder)
@@ -200,12 +214,6 @@ def test_a_checkpoint_is_replaced_whole_or_not_at_all(world, tmp_path):
 def test_a_missing_or_damaged_controller_model_is_named_by_compose(world, tmp_path, controller, damage, message):
     """The controller's own model is what is wrong, and the line says so, not that the dynamics model was trained on
     another model's rollouts."""
-    import shutil
-
-    from conftest import run_cli, tree_digest
-    from test_outputs import _cnn_checkpoint
-    from test_writers import one_line_error
-
     root = Path(shutil.copytree(world[0], tmp_path / "world"))
     (root / "dynamics" / "mp_insert").rename(root / "dynamics" / controller)
     model = tmp_path / "model"
@@ -223,8 +231,6 @@ def test_a_missing_or_damaged_controller_model_is_named_by_compose(world, tmp_pa
 
 
 def test_a_composed_run_continues_only_with_its_own_settings(tmp_path):
-    from policy_composer.app.composition import RunError, check_out
-
     settings = {"models": "/models", "controller_models": {"cnn_insert": "aaaa"}, "resolution": 128}
     (tmp_path / "run.json").write_text(json.dumps(settings))
     check_out(tmp_path, resume=True, settings=dict(settings))
@@ -420,16 +426,6 @@ def test_a_composed_episode_with_learned_senses_reads_no_truth(world):
 def test_each_predicate_is_judged_on_held_out_episodes(world, controller_rollouts, full_task_demos):
     """Every predicate's classifier is trained apart from the held-out episodes and logs its figures there, and the
     logged figures are what the saved model gives on those frames."""
-    from policy_composer.selector.predicates import (
-        held_out,
-        load_predicates,
-        predicate_metrics,
-        proprioception,
-        stacked,
-    )
-    from policy_composer.tasks.gear_assembly.spec import PREDICATES
-    from policy_composer.tasks.gear_assembly.task import TASK
-
     models = load_predicates(world[0], TASK)
     assert set(models) == set(PREDICATES)
     frames = [load_frames(d, PREDICATE_CONFIG.cameras, SIZE, progress=False)
@@ -486,10 +482,6 @@ def test_the_controller_the_selector_chooses_is_the_one_that_runs(world, full_ta
 
 
 def test_knock_out_puts_the_gear_back_on_the_table(state_env):
-    from policy_composer.policies.senses import OracleSenses
-    from policy_composer.tasks.gear_assembly.expert import GearAssemblyExpert
-    from policy_composer.tasks.gear_assembly.subtasks import SUBTASKS
-
     env = gym.make("GearAssembly-v1", obs_mode="state_dict", knock_out_step=5)
     u = env.unwrapped
     obs, _ = env.reset(seed=1)
@@ -509,8 +501,6 @@ def test_knock_out_puts_the_gear_back_on_the_table(state_env):
 def test_a_run_killed_mid_episode_line_keeps_its_finished_episodes(tmp_path):
     """The last line of episodes.jsonl cut off by a kill is an episode that runs again; a damaged line before it is
     named, not skipped."""
-    from policy_composer.app.composition import RunError, load_episodes
-
     line = json.dumps({"seed": 0, "success": True, "steps": 10, "knocked_out": False, "activations": [],
                        "decisions": []})
     (tmp_path / "episodes.jsonl").write_text(line + "\n" + line[:25])
@@ -542,8 +532,6 @@ def test_a_batched_decision_scores_as_one_controller_at_a_time(world, goal_score
 
 def test_composing_on_two_workers_gives_the_serial_run(world, tmp_path):
     """Seeds spread over processes: every episode, and episodes.jsonl in seed order, as one process writes them."""
-    from policy_composer.app.composition import compose_library
-
     config = ComposeConfig(horizon=3, samples=4, max_steps=150)
     runs = {w: compose_library(world[0], LibrarySources(max_grasp_offset=0.0), config, [1, 0], tmp_path / f"w{w}",
                                videos=0, resolution=SIZE, progress=False, workers=w) for w in (1, 2)}
@@ -555,12 +543,6 @@ def test_composing_on_two_workers_gives_the_serial_run(world, tmp_path):
 def test_the_latent_goal_score_tracks_progress_without_decoding(world, full_task_demos, tmp_path):
     """The goal score of the VAE's latents rises along its demonstrations, and a decision with it rolls out the same
     futures as with the image goal score but never decodes them."""
-    import shutil
-
-    from policy_composer.selector.configuration import LatentGoalScoreConfig
-    from policy_composer.selector.goal_score import LatentGoalScoreModel
-    from policy_composer.selector.train import posteriors
-
     root, _ = world
     image, latent = GearWorldModel.load(root), GearWorldModel.load(root, goal_score="latent")
     assert latent.latent_goal and not image.latent_goal
@@ -592,10 +574,6 @@ def test_the_latent_goal_score_tracks_progress_without_decoding(world, full_task
 def test_poisoned_weights_are_refused_before_anything_runs(world, tmp_path):
     """A dynamics model or goal scorer whose safetensors hold NaN or Inf: the load names the file, instead of a
     selector ranking NaN and a user reading a failed controller."""
-    import shutil
-
-    from safetensors.torch import load_file, save_file
-
     camera = json.loads((world[0] / "vae" / "config.json").read_text())["camera"]  # the goal score it loads
     for part, value in (("dynamics/mp_insert", float("nan")), (f"goal_score/{camera}", float("inf"))):
         root = Path(shutil.copytree(world[0], tmp_path / part.replace("/", "_")))
@@ -610,8 +588,6 @@ def test_poisoned_weights_are_refused_before_anything_runs(world, tmp_path):
 
 def test_the_selector_never_chooses_a_controller_whose_score_is_not_finite():
     """A model computing NaN is reported in the decision's log and left out; argmax alone would rank NaN first."""
-    from policy_composer.selector.core import Selector
-
     class Stay:
         def step(self, states, generator):
             return states

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import threading
 import time
+from dataclasses import replace
 
 import numpy as np
 import psutil
@@ -12,9 +13,12 @@ import pytest
 import torch
 
 from policy_composer.app.controller_table import evaluate_rows
+from policy_composer.app.record import record_recipe
 from policy_composer.app.workers import ClusterError, ray_head, run_episodes, stop_ray, use_ray
-from policy_composer.data.features import open_dataset
+from policy_composer.data.recipes import load_recipe
+from policy_composer.data.verify import open_dataset
 from policy_composer.policies.library import LibrarySources
+from policy_composer.tasks.gear_assembly.spec import EnvSettings
 
 
 def _square(x: int) -> int:
@@ -53,12 +57,6 @@ def test_table_one_on_two_workers_gives_the_serial_cells():
 @pytest.mark.timeout(600)
 def test_rollouts_recorded_on_two_workers_are_the_serial_dataset(controller_rollouts, tmp_path):
     """The same recipe and seeds on 2 workers: one LeRobot dataset, equal to the serial one episode for episode."""
-    from dataclasses import replace
-
-    from policy_composer.app.record import record_recipe
-    from policy_composer.data.recipes import load_recipe
-    from policy_composer.tasks.gear_assembly.spec import EnvSettings
-
     root = tmp_path / "rollouts"
     recipe = replace(load_recipe("gear-controller-rollouts"), controllers=("mp_pick", "mp_insert"))
     record_recipe(recipe, root, episodes=1, settings=EnvSettings(resolution=32), progress=False,
@@ -105,10 +103,6 @@ def test_episodes_on_a_ray_cluster_are_the_serial_ones_and_a_killed_worker_runs_
     """Two workers as Ray actors: the results in the order of the items; a worker killed while the episodes run is
     restarted and its episode (if it had one) run again, and this process writes each episode once: the serial
     dataset."""
-    from policy_composer.app.record import record_recipe
-    from policy_composer.data.recipes import load_recipe
-    from policy_composer.tasks.gear_assembly.spec import EnvSettings
-
     killed = []
 
     def kill_one_worker():

@@ -14,14 +14,22 @@ import sys
 import time
 from pathlib import Path
 
+import imageio
 import numpy as np
 import pytest
+import torch
 from conftest import run_cli, tree_digest
+from safetensors.torch import load_file
 
 from policy_composer.app.composition import RunError, VideoWriter, begin_run, compose_library
+from policy_composer.data import lock, recorder
 from policy_composer.data.features import read_info
 from policy_composer.data.lock import FolderBusy, lock_path, one_writer
 from policy_composer.data.recipes import load_recipe
+from policy_composer.learning.snapshot import Snapshots
+from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
+from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
+from policy_composer.policies.cnn.train import load_demonstrations, train_cnn_policy
 from policy_composer.selector.configuration import ComposeConfig
 
 BIN = Path(sys.executable).parent
@@ -149,8 +157,6 @@ def test_a_full_disk_mid_episode_leaves_the_dataset_as_it_was(tmp_path):
 
 def test_a_save_failing_mid_episode_rolls_back(insertion_demos, tmp_path, monkeypatch):
     """The full disk's path without a small disk: the episode's files written, then the save fails with ENOSPC."""
-    from policy_composer.data import recorder
-
     root = Path(shutil.copytree(insertion_demos, tmp_path / "demos"))
     before = tree_digest(root)
     monkeypatch.setattr(recorder, "data_digests", disk_error(errno.ENOSPC, root / "data"))
@@ -169,8 +175,6 @@ def test_a_read_only_disk_is_one_line(tmp_path):
 
 def test_a_read_only_folder_is_one_line(tmp_path, monkeypatch):
     """The read-only disk's path without one: the first write (the writer's lock) fails with EROFS."""
-    from policy_composer.data import lock
-
     monkeypatch.setattr(lock.os, "open", disk_error(errno.EROFS, tmp_path / ".demos.lock"))
     line = one_line_error(run_cli("record", "gear-insertion-demos", "--episodes", "1", "--root",
                                   str(tmp_path / "demos")))
@@ -223,8 +227,6 @@ def test_recording_over_a_dataset_without_resume_is_one_line(insertion_demos, tm
 
 def test_a_video_the_encoder_did_not_finish_is_not_put_in_place(tmp_path, monkeypatch):
     """As ffmpeg on a full disk: the writer returns, the file is truncated. Nothing replaces the target."""
-    import imageio
-
     video = VideoWriter("head")
     video.frames = [np.zeros((32, 32, 3), np.uint8)] * 10
     monkeypatch.setattr(imageio, "mimsave", lambda path, frames, **kw: Path(path).write_bytes(b"\x00\x00\x00\x18ftyp"))
@@ -235,14 +237,6 @@ def test_a_video_the_encoder_did_not_finish_is_not_put_in_place(tmp_path, monkey
 
 def test_an_interrupted_training_goes_on_from_its_snapshot_to_the_uninterrupted_weights(insertion_demos, tmp_path,
                                                                                         monkeypatch):
-    import torch
-    from safetensors.torch import load_file
-
-    from policy_composer.learning.snapshot import Snapshots
-    from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
-    from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
-    from policy_composer.policies.cnn.train import load_demonstrations, train_cnn_policy
-
     config = CNNPolicyConfig(subtask="insert", epochs=4, num_mixtures=2, image_size=32, batch_size=32)
     data = load_demonstrations(insertion_demos, config, progress=False)
     _, whole = train_cnn_policy(insertion_demos, config, out=tmp_path / "whole", progress=False, data=data)

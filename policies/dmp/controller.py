@@ -18,11 +18,15 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+from movement_primitives.dmp import DMP
+from safetensors.numpy import load_file, save_file
+from tqdm import tqdm
 
 from policy_composer.data.atomic import check_replaceable, replacing_folder, safetensors_errors
 from policy_composer.learning.checkpoint import CheckpointError, check_finite
 from policy_composer.policies.arm import Outcome, Segment, run_activation
 from policy_composer.policies.dmp.configuration_dmp import DMPConfig
+from policy_composer.policies.mp.controller import MotionPlanningController
 from policy_composer.policies.mp.planning import VELOCITY_LIMIT, time_parameterize
 from policy_composer.policies.subtasks import SubtaskController
 from policy_composer.tasks.base import Waypoint
@@ -45,8 +49,6 @@ class DMPLibrary:
     demonstrations: int = 0
 
     def save(self, directory: str | Path) -> None:
-        from safetensors.numpy import save_file
-
         tensors, layout = {}, {}
         for name, prims in self.primitives.items():
             layout[name] = [None if p is None else p.duration for p in prims]
@@ -61,8 +63,6 @@ class DMPLibrary:
 
     @classmethod
     def load(cls, directory: str | Path) -> DMPLibrary:
-        from safetensors.numpy import load_file
-
         directory = Path(directory)
         if not (directory / "dmp.json").is_file() or not (directory / "dmp.safetensors").is_file():
             raise FileNotFoundError(f"no DMP library in {directory} (expected dmp.json and dmp.safetensors); "
@@ -83,8 +83,6 @@ class DMPLibrary:
 
 
 def _dmp(config: DMPConfig, duration: float):
-    from movement_primitives.dmp import DMP
-
     return DMP(n_dims=7, execution_time=duration, dt=config.dt, n_weights_per_dim=config.n_weights_per_dim,
                smooth_scaling=config.smooth_scaling)
 
@@ -141,10 +139,6 @@ class DMPController(SubtaskController):
 
 def fit_dmp_library(env, seeds: list[int], config: DMPConfig | None = None, progress: bool = True) -> DMPLibrary:
     """Run the motion planner through the full task on each seed and fit a DMP to each of its movements."""
-    from tqdm import tqdm
-
-    from policy_composer.policies.mp.controller import MotionPlanningController
-
     config = config or DMPConfig(dt=1.0 / float(env.unwrapped.control_freq))
     task = task_of(env)
     demos: dict[str, list[list[np.ndarray | None]]] = {n: [] for n in task.sequence}

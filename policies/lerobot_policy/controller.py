@@ -10,12 +10,16 @@ flat action), the driven arm's part is applied (any other arm holds), like every
 from __future__ import annotations
 
 import functools
+import json
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 import torch
+from lerobot.configs.policies import PreTrainedConfig
+from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+from lerobot.utils.import_utils import register_third_party_plugins
 
 from policy_composer.data.frames import to_model_image
 from policy_composer.learning.checkpoint import CheckpointError, check_finite
@@ -31,15 +35,11 @@ POLICY_NAMES = {"act": "ACT", "diffusion": "Diffusion Policy", "pi0": "pi0", "sm
 def register_plugins() -> None:
     """Import the installed LeRobot plugins (`lerobot_policy_*` and the like), as LeRobot's scripts do at start-up,
     so that a checkpoint of a plugin's policy type (the paper's `cnn_mdn`) loads."""
-    from lerobot.utils.import_utils import register_third_party_plugins
-
     register_third_party_plugins()
 
 
 def lerobot_cameras(path: str | Path) -> tuple[str, ...]:
     """The cameras a LeRobot checkpoint reads, from its config (without loading the policy)."""
-    import json
-
     config = Path(path) / "config.json"
     features = json.loads(config.read_text()).get("input_features", {}) if config.is_file() else {}
     return tuple(k.removeprefix("observation.images.") for k in features if k.startswith("observation.images."))
@@ -47,8 +47,6 @@ def lerobot_cameras(path: str | Path) -> tuple[str, ...]:
 
 def lerobot_label(path: str | Path) -> str:
     """A checkpoint's row in Table I, by its policy type: "ACT (LeRobot)", "Diffusion Policy (LeRobot)"."""
-    import json
-
     config = Path(path) / "config.json"
     kind = json.loads(config.read_text()).get("type", "policy") if config.is_file() else "policy"
     return f"{POLICY_NAMES.get(kind, kind)} (LeRobot)"
@@ -71,9 +69,6 @@ class LeRobotPolicyController(LearnedController):
                  instruction: str | None = None, max_steps: int = 120):
         """`subtask`: the one the policy was trained for (default: the task's last); `instruction`: LeRobot's
         `task` string (default: the task's own)."""
-        from lerobot.configs.policies import PreTrainedConfig
-        from lerobot.policies.factory import get_policy_class, make_pre_post_processors
-
         register_plugins()
         path = Path(pretrained_path)
         if not (path / "config.json").is_file():

@@ -13,10 +13,15 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+import torch
+
 from policy_composer.app.controller_table import evaluate_controllers
+from policy_composer.app.record import record_recipe
 from policy_composer.data.features import read_sidecar
 from policy_composer.data.recipes import load_recipe
 from policy_composer.policies.library import LeRobotSource, LibraryError, LibrarySources, all_names
+from policy_composer.selector.dynamics import load_dynamics
+from policy_composer.selector.train import train_world_model
 from policy_composer.tasks.gear_assembly.spec import EnvSettings
 
 
@@ -24,12 +29,6 @@ def add_lerobot_controller(source: LeRobotSource, rollouts: str | Path, demos: s
                            episodes: int, trials: int, seed: int, progress: bool = True) -> dict:
     """Record `episodes` rollouts of the checkpoint's controller into `rollouts`, train its dynamics model into
     `models`, and run it `trials` times on its subtask from seed `seed`. Returns the timings (s) and the cell."""
-    import torch
-
-    from policy_composer.app.record import record_recipe
-    from policy_composer.selector.dynamics import load_dynamics
-    from policy_composer.selector.train import train_world_model
-
     rollouts, models, name = Path(rollouts), Path(models), source.controller_name
     if name in all_names():
         raise LibraryError(f"{name!r} is already a controller of the library; name the checkpoint's controller "

@@ -9,22 +9,28 @@ from collections import Counter
 from dataclasses import asdict
 from functools import partial
 from pathlib import Path
-from typing import TYPE_CHECKING
 
+import imageio
+import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
+import torch
+from PIL import Image, ImageDraw
+from tqdm import tqdm
+
+from policy_composer.app.errors import RunError
 from policy_composer.app.stats import rate
+from policy_composer.app.workers import in_process, run_episodes
 from policy_composer.data import atomic, interrupt
 from policy_composer.data.lock import one_writer
+from policy_composer.data.verify import video_frames
+from policy_composer.policies.library import build_library, cameras_needed, check_models, model_ids
+from policy_composer.selector.compose import ComposedEpisode, compose_episode
 from policy_composer.selector.configuration import ComposeConfig
-
-if TYPE_CHECKING:  # the simulator and torch load when a run starts, not when the command line starts
-    from policy_composer.selector.compose import ComposedEpisode
+from policy_composer.selector.world_model import GearWorldModel
 
 PAPER_COMPOSED = "10/10"  # paper Table I: MP + CNN composed by the selector, full task
 MILESTONES = ("picked", "at the pre-insertion pose", "seated")  # the full task's subtasks done, in order
-
-
-class RunError(ValueError):
-    """A composed run that the command would overwrite, or continue with other settings than its own."""
 
 
 class VideoWriter:
@@ -35,9 +41,6 @@ class VideoWriter:
         self.trace: list[tuple[str, float]] = []  # per step: the running controller and the goal score
 
     def __call__(self, obs, controller: str, score: float) -> None:
-        import numpy as np
-        from PIL import Image, ImageDraw
-
         self.trace.append((controller, score))
         rgb = obs["sensor_data"][self.camera]["rgb"][0].cpu().numpy()
         img = Image.fromarray(rgb).resize((rgb.shape[1] * self.scale, rgb.shape[0] * self.scale), Image.NEAREST)
@@ -49,10 +52,6 @@ class VideoWriter:
         self.frames.append(np.asarray(img))
 
     def save(self, path: Path, fps: int) -> Path:
-        import imageio
-
-        from policy_composer.data.features import video_frames
-
         with atomic.replacing(path) as tmp:
             imageio.mimsave(tmp, self.frames, fps=fps, macro_block_size=1)
             try:  # the encoder can fail without a word (ffmpeg on a full disk): only a whole video goes in place
@@ -68,11 +67,7 @@ class VideoWriter:
 def plot_goal_score(trace: list[tuple[str, float]], seed: int, path: Path) -> Path:
     """The paper's figure of a composed trial: the goal score of each step's image, coloured by the running
     controller."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     names = list(dict.fromkeys(name for name, _ in trace))
     colors = dict(zip(names, plt.get_cmap("tab10").colors))
     fig, ax = plt.subplots(figsize=(8, 3))
@@ -101,9 +96,6 @@ class Composer:
     def __init__(self, models: str | Path, sources, config: ComposeConfig, resolution: int = 128,
                  clearance_mm: float = 2.0, knock_out_step: int | None = None, out: Path | None = None,
                  video_seeds: tuple[int, ...] = (), world=None, goal_score: str = "image"):
-        from policy_composer.policies.library import build_library, cameras_needed
-        from policy_composer.selector.world_model import GearWorldModel
-
         # given: loaded in this process
         self.world = world if world is not None else GearWorldModel.load(models, goal_score=goal_score,
                                                                          predicates=config.senses == "learned")
@@ -116,8 +108,6 @@ class Composer:
         self.config, self.out, self.video_seeds = config, out, video_seeds
 
     def __call__(self, seed: int) -> ComposedEpisode:
-        from policy_composer.selector.compose import compose_episode
-
         video = VideoWriter(self.world.camera) if seed in self.video_seeds else None
         result = compose_episode(self.env, self.library, self.world, self.config, seed, on_frame=video)
         if video is not None:
@@ -139,13 +129,6 @@ def compose_library(models: str | Path, sources, config: ComposeConfig, seeds: l
     (a `LibrarySources`), and compose on each seed (spread over `workers` processes); writes episodes.jsonl
     (decision logs), summary.md and the videos of the first `videos` seeds. With `resume`, the episodes already
     in episodes.jsonl are kept and their seeds not run again."""
-    import torch
-    from tqdm import tqdm
-
-    from policy_composer.app.workers import in_process, run_episodes
-    from policy_composer.policies.library import check_models, model_ids
-    from policy_composer.selector.world_model import GearWorldModel
-
     out = Path(out)
     with one_writer(out):  # a second run into it stops at once
         check_out(out, resume)  # first: a finished run in `out` is refused before anything loads
@@ -220,8 +203,6 @@ def begin_run(out: Path, resume: bool, settings: dict) -> None:
 
 def load_episodes(out: Path) -> list[ComposedEpisode]:
     """The episodes a composed run wrote to `out`/episodes.jsonl (none if it has not written any)."""
-    from policy_composer.selector.compose import ComposedEpisode
-
     path = out / "episodes.jsonl"
     if not path.exists():
         return []

@@ -15,10 +15,17 @@ from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 
+import torch
+from tqdm import tqdm
+
 from policy_composer.app.starts import start_state
 from policy_composer.app.stats import rate
+from policy_composer.app.workers import run_episodes
 from policy_composer.data import atomic
 from policy_composer.policies.arm import Outcome, run_activation
+from policy_composer.policies.base import InitiationError
+from policy_composer.policies.lerobot_policy.controller import lerobot_label
+from policy_composer.policies.library import build_library, cameras_needed, names_of_kind, subtask_of
 from policy_composer.policies.senses import OracleSenses
 from policy_composer.selector.predicates import LearnedSenses, load_predicates
 from policy_composer.tasks.base import TaskDescription
@@ -59,8 +66,6 @@ class Trial:
 
 def run_trial(env, controllers: dict[str, object], column: str, seed: int) -> Trial:
     """One trial of a Table I cell: `controllers` (subtask -> controller) run `column`'s sequence from its start."""
-    from policy_composer.policies.base import InitiationError
-
     task = task_of(env)
     sequence = sequences(task)[column]
     truth = OracleSenses(env)
@@ -97,8 +102,6 @@ class TrialRunner:
         self.built: dict[str, tuple] = {}
 
     def __call__(self, item: tuple[str, str, int]) -> Trial:
-        from policy_composer.policies.library import build_library, cameras_needed
-
         row, column, seed = item
         if row not in self.built:
             cameras = tuple(dict.fromkeys((*cameras_needed(self.rows[row], self.sources),
@@ -124,12 +127,6 @@ def evaluate_rows(rows: dict[str, tuple[str, ...]], sources, trials: int, first_
     seeds from `first_seed` each (or the column's own number in `column_trials`), the trials spread over `workers`
     processes. The controllers sense the predicates with the classifiers of the world model in `predicates`, or
     (None) with the simulator's truth; the trials are judged on the truth either way."""
-    import torch
-    from tqdm import tqdm
-
-    from policy_composer.app.workers import run_episodes
-    from policy_composer.policies.library import subtask_of
-
     torch.set_num_threads(1)
     runs = sequences(sources.description)
     needed = {s for column in columns for s in runs[column]}  # only these controllers are built and loaded
@@ -167,9 +164,6 @@ def evaluate_table(kinds: list[str], sources, trials: int, first_seed: int = 0, 
                    columns: tuple[str, ...] = SUBTASK_COLUMNS, column_trials: dict[str, int] | None = None,
                    predicates: str | Path | None = None) -> dict[str, dict[str, Cell]]:
     """Rows of Table I: one for each of `kinds` (MP, DMP, CNN), then one for each LeRobot checkpoint in `sources`."""
-    from policy_composer.policies.lerobot_policy.controller import lerobot_label
-    from policy_composer.policies.library import names_of_kind
-
     rows = {kind: names_of_kind(kind, sources.task) for kind in kinds}
     rows.update({lerobot_label(s.path): (s.controller_name,) for s in sources.lerobot})
     return evaluate_rows(rows, sources, trials, first_seed, resolution, clearance_mm, progress, workers, columns,

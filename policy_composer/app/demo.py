@@ -5,25 +5,51 @@ the dynamics models, the goal scorers and the predicate classifiers -> evaluate 
 (Table I) -> compose the library with the selector, on the oracle's predicates and on the sensed ones (and recover
 from a knock-out) -> the random-walk MDP experiments -> the report.
 
-A profile says how big each stage is: `quick` runs on a 2-core CPU in well under an hour, `paper` uses the paper's
-sizes, `smoke` is the smallest that runs every stage (for tests: its figures mean nothing).
+A profile (`profiles`) says how big each stage is.
 """
 
 from __future__ import annotations
 
 import shutil
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, replace
 from functools import partial
 from pathlib import Path
 
+import torch
+
+from policy_composer.app import mdp
+from policy_composer.app.composition import compose_library
+from policy_composer.app.controller_table import SUBTASK_COLUMNS, evaluate_table, paper_table, write_table
 from policy_composer.app.pipeline import Stage, StageRecord, run_stages
+from policy_composer.app.profiles import PROFILES, Profile
+from policy_composer.app.record import record_recipe
+from policy_composer.app.report import write_report
 from policy_composer.data import interrupt
+from policy_composer.data.catalog import summarize
+from policy_composer.data.features import FEATURES_REVISION
 from policy_composer.data.lock import one_writer
+from policy_composer.data.recipes import load_recipe
+from policy_composer.data.verify import verify_dataset
+from policy_composer.learning.checkpoint import finished
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
-from policy_composer.selector.configuration import ComposeConfig
+from policy_composer.policies.cnn.train import train_cnn_policy
+from policy_composer.policies.dmp.configuration_dmp import FIT_FIRST_SEED
+from policy_composer.policies.dmp.controller import fit_dmp_library
+from policy_composer.policies.library import LIBRARY_REVISION, LibrarySources, all_names
+from policy_composer.policies.registry import kinds
+from policy_composer.selector.configuration import (
+    ComposeConfig,
+    DynamicsConfig,
+    GoalScoreConfig,
+    PredicateConfig,
+    VAEConfig,
+)
+from policy_composer.selector.evaluate import evaluate_goal_scores
+from policy_composer.selector.train import train_goal_scores, train_predicate_models, train_world_model
 from policy_composer.tasks.base import TaskSpec
-from policy_composer.tasks.registry import DEFAULT_TASK, get_spec
+from policy_composer.tasks.gear_assembly.env import TASK_REVISION
+from policy_composer.tasks.registry import DEFAULT_TASK, get_spec, get_task
 
 # The controllers that `--insertion straight` changes on the gear: the paper's open-loop insertions.
 STRAIGHT = ("mp_insert", "dmp_insert")
@@ -31,96 +57,6 @@ STRAIGHT = ("mp_insert", "dmp_insert")
 # job's tables and compositions run (and of the replacements Table I draws, seed + 1000 k).
 DAGGER_SEEDS = {"insert": 80000, "move": 90000}
 BC_STAGE = "bc-cnn"  # the CNN policies behaviour-cloned on their demonstrations, where DAgger rounds follow
-
-
-@dataclass(frozen=True)
-class Profile:
-    name: str
-    resolution: int  # recorded camera images, pixels square
-    image_size: int  # what the models see
-    insertion_demos: int  # paper: 50
-    transport_demos: int  # pick-up and carry, for the CNN pick-up and move policies
-    full_task_demos: int  # training plus held-out
-    train_demos: int  # paper: 5
-    dmp_episodes: int  # planner episodes the DMPs are fitted to
-    rollouts: int  # per controller, for its dynamics model
-    cnn_epochs: int  # paper: 200
-    dagger_episodes: int  # a CNN policy's own rollouts labelled by the expert (DAgger), which it trains on again
-    dagger_epochs: int  # that training, on the demonstrations and the labelled rollouts together
-    dagger_rounds: int  # each records the last policies' rollouts and trains them again (0: none)
-    vae_epochs: int
-    dynamics_epochs: int
-    goal_epochs: int
-    predicate_epochs: int  # each predicate classifier's
-    table_trials: int  # per Table I cell (paper: 10)
-    compose_episodes: int  # the first 10 are Table I's composed row; all of them the success rate over seeds
-    knockout_episodes: int
-    mdp_episodes_19: int
-    mdp_episodes_100: int  # per heatmap cell
-    mdp_levels: tuple[float, ...] | None = None  # noise levels of the heatmap (None: the full grid, 0 to 0.8)
-    mixtures: int = 24  # paper: 24
-    horizon: int = 10  # paper: n = 10
-    samples: int = 16
-    cnn_max_steps: int = CNNPolicyConfig.max_steps  # a CNN controller's step limit
-    compose_max_steps: int = ComposeConfig.max_steps  # control steps of a composed episode
-    dagger_subtasks: tuple[str, ...] = ("insert",)  # the CNN policies the DAgger rounds train (SPEC.corrections)
-    bfloat16_subtasks: tuple[str, ...] = ()  # the CNN policies whose convolutions train in bfloat16 (--precision)
-    insert_trials: int | None = None  # Table I's insert column, where the paper's comparison lies (None: table_trials)
-    insert_epochs: int | None = None  # the CNN insertion's behaviour cloning, if not cnn_epochs
-    holds: str = ""  # which results this size supports
-    elsewhere: str = ""  # figures at this size that other runs measured (the report links to them in the README)
-
-    def cnn_training(self, subtasks: tuple[str, ...] = ("pick", "move", "insert")) -> str:
-        """The behaviour cloning of the CNN policies of `subtasks` (the task's), as the job's messages and its report
-        state it."""
-        others = [s for s in subtasks if s != "insert"]
-        epochs = (f"{self.cnn_epochs} epochs, the insertion {self.insert_epochs}" if others else
-                  f"{self.insert_epochs} epochs") if self.insert_epochs else f"{self.cnn_epochs} epochs"
-        bfloat16 = [s for s in self.bfloat16_subtasks if s in subtasks]
-        return epochs + (f", in bfloat16 for the {', '.join(bfloat16)}" if bfloat16 else "")
-
-
-PROFILES = {
-    "quick": Profile("quick", resolution=128, image_size=64, insertion_demos=50, transport_demos=20,
-                     full_task_demos=7, train_demos=5, dmp_episodes=5, rollouts=4, cnn_epochs=80, insert_epochs=200,
-                     dagger_episodes=50, dagger_epochs=120, dagger_rounds=2,
-                     bfloat16_subtasks=("pick", "move", "insert"), vae_epochs=15, dynamics_epochs=30,
-                     goal_epochs=30, predicate_epochs=6, table_trials=3, insert_trials=10, compose_episodes=10,
-                     knockout_episodes=3,
-                     mdp_episodes_19=1000, mdp_episodes_100=30,
-                     holds="The MDP experiments, the MP row of Table I, the CNN insertion and the goal-score "
-                           "comparison between cameras hold at this size (the MP row needs no training; the CNN "
-                           "insertion is the paper profile's recipe up to its second DAgger round, which seated "
-                           "96/100 held-out seeds in one run; every insertion of Table I has 10 trials; the MDP runs "
-                           "1000 episodes, and 30 in each of the 9x9 noise cells). The CNN pick-up and move (20 "
-                           "demonstrations each, 80 epochs) are far below the paper's sizes and their cells have 3 "
-                           "trials, so they show that the pipeline works, not how well: run `--profile paper` for "
-                           "that. The composed rows' 10 seeds show the selector at work; their rates at this size "
-                           "need more seeds than this job runs.",
-                     elsewhere="the composed row on 100 held-out seeds with the models of an earlier run of this "
-                               "profile (measured 2026-12-05), and recovery from 20 knock-outs with those of its "
-                               "earlier size (64 px cameras, measured 2026-12-02)"),
-    "paper": Profile("paper", resolution=128, image_size=64, insertion_demos=50, transport_demos=50,
-                     full_task_demos=8, train_demos=5, dmp_episodes=5, rollouts=20, cnn_epochs=200,
-                     dagger_episodes=50, dagger_epochs=120, dagger_rounds=3, dagger_subtasks=("move", "insert"),
-                     bfloat16_subtasks=("insert",),
-                     vae_epochs=30, dynamics_epochs=60, goal_epochs=60, predicate_epochs=6,
-                     table_trials=10, compose_episodes=50, knockout_episodes=10, mdp_episodes_19=1000,
-                     mdp_episodes_100=100,
-                     holds="The paper's sizes: 50 insertion demonstrations (and 50 of the pick-up and carry), 5 "
-                           "full-task demonstrations, 200 epochs, 24 mixtures, n = 10, 10 trials per Table I cell, "
-                           "and 50 composed seeds."),
-    "smoke": Profile("smoke", resolution=32, image_size=32, insertion_demos=1, transport_demos=1,
-                     full_task_demos=2, train_demos=1, dmp_episodes=1, rollouts=1, cnn_epochs=2, dagger_episodes=1,
-                     dagger_epochs=2, dagger_rounds=1, vae_epochs=2, dynamics_epochs=2, goal_epochs=2,
-                     predicate_epochs=1,
-                     table_trials=1, insert_trials=2, compose_episodes=1, knockout_episodes=1, mdp_episodes_19=20,
-                     mdp_episodes_100=2,
-                     mdp_levels=(0.0, 0.4, 0.8), mixtures=4, horizon=3, samples=4, cnn_max_steps=30,
-                     compose_max_steps=250, dagger_subtasks=("move", "insert"),
-                     holds="Every stage at the smallest size that runs, to test the pipeline: no figure here means "
-                           "anything."),
-}
 
 
 def stage_name(recipe: str) -> str:
@@ -132,8 +68,6 @@ def env_key(task: str, resolution: int) -> dict:
     """What a stage's results depend on of the env: the gear's settings and revision, or another task's name."""
     if task != DEFAULT_TASK:
         return {"resolution": resolution, "task": task}
-    from policy_composer.tasks.gear_assembly.env import TASK_REVISION
-
     return {"resolution": resolution, "clearance_mm": 2.0, "task_revision": TASK_REVISION}
 
 
@@ -141,13 +75,6 @@ def stages(p: Profile, workers: int = 1, task: str = DEFAULT_TASK) -> list[Stage
     """The main job's stages for `task` at the sizes of profile `p`; the episode loops run on `workers` processes
     (not in a stage's key: the results are the same for any number). The gear's job adds the paper's straight-down
     insertions, the knock-out and the random-walk MDP."""
-    from policy_composer.data.features import FEATURES_REVISION
-    from policy_composer.data.recipes import load_recipe
-    from policy_composer.policies.library import LIBRARY_REVISION, LibrarySources, all_names
-    from policy_composer.policies.registry import kinds
-    from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, PredicateConfig, VAEConfig
-    from policy_composer.tasks.registry import get_task
-
     spec, description = get_spec(task), get_task(task)
     gear = task == DEFAULT_TASK
     insertion_recipe = spec.demonstrations["insert"][0]
@@ -279,8 +206,6 @@ def stages(p: Profile, workers: int = 1, task: str = DEFAULT_TASK) -> list[Stage
 def run_demo(profile: str = "quick", out: str | Path = "results", workers: int = 1,
              task: str = DEFAULT_TASK) -> tuple[dict[str, StageRecord], Path]:
     """Run (or reuse) every stage of `task`'s job under `out`/pipeline, then write `out`/report.md and report.html."""
-    from policy_composer.app.report import write_report
-
     if profile not in PROFILES:
         raise ValueError(f"unknown profile {profile!r}: choose one of {', '.join(PROFILES)}")
     p = PROFILES[profile]
@@ -326,9 +251,6 @@ def _dagger_record(recipe, p: Profile, workers: int, policy: str, seed: int, tas
 
 
 def _record(recipe, out: Path, episodes: int, resolution: int, workers: int, sources=None, seed: int = 0) -> dict:
-    from policy_composer.app.record import record_recipe
-    from policy_composer.data.catalog import summarize
-
     root = out / "dataset"
     resume = (root / "meta" / "info.json").exists()
     if root.exists() and not resume:  # interrupted before its first episode was saved
@@ -341,16 +263,12 @@ def _record(recipe, out: Path, episodes: int, resolution: int, workers: int, sou
 
 def _verify_dataset(out: Path) -> None:
     """A recording stage's dataset, as far as it got, passes every reader's checks (frame counts included)."""
-    from policy_composer.data.features import verify_dataset
-
     if (out / "dataset").exists():
         verify_dataset(out / "dataset")
 
 
 def _sources(inputs: dict[str, Path], task: str, insertion: str = "", cnn: str = "cnn"):
     """The task's library, its models from the stages' outputs: the DMPs, and the CNN policies of stage `cnn`."""
-    from policy_composer.policies.library import LibrarySources
-
     models = {"cnn": str(inputs[cnn] / "cnn")}
     if "dmp" in inputs:
         models["dmp"] = str(inputs["dmp"] / "dmp")
@@ -358,10 +276,6 @@ def _sources(inputs: dict[str, Path], task: str, insertion: str = "", cnn: str =
 
 
 def _fit_dmp(out: Path, episodes: int, task: str, resolution: int) -> dict:
-    from policy_composer.policies.dmp.configuration_dmp import FIT_FIRST_SEED
-    from policy_composer.policies.dmp.controller import fit_dmp_library
-    from policy_composer.tasks.registry import get_task
-
     description = get_task(task)
     env = description.make_env("state_dict", description.spec.env_settings(resolution=resolution))
     try:
@@ -391,11 +305,6 @@ def _train_policies(out: Path, configs: dict[str, CNNPolicyConfig], datasets: di
     """Train the CNN policy of each subtask of `configs` on its `datasets` into out/cnn/SUBTASK. A policy already
     there at its config was trained by this stage before an interruption (the folder's key fixes the data), and is
     kept."""
-    import torch
-
-    from policy_composer.learning.checkpoint import finished
-    from policy_composer.policies.cnn.train import train_cnn_policy
-
     torch.set_num_threads(2)
     timings, nll = {}, {}
     for subtask, config in configs.items():
@@ -412,10 +321,6 @@ def _train_policies(out: Path, configs: dict[str, CNNPolicyConfig], datasets: di
 
 def _train_world(out: Path, inputs: dict[str, Path], vae, dynamics, goal, predicates, labelled,
                  cameras: tuple[str, ...]) -> dict:
-    import torch
-
-    from policy_composer.selector.train import train_goal_scores, train_predicate_models, train_world_model
-
     torch.set_num_threads(2)
     rollouts, demos = inputs["controller-rollouts"] / "dataset", inputs["full-task-demos"] / "dataset"
     timings = train_world_model(rollouts, demos, out / "world", vae, dynamics, resume=True)
@@ -429,10 +334,6 @@ def _train_world(out: Path, inputs: dict[str, Path], vae, dynamics, goal, predic
 def _train_straight(out: Path, inputs: dict[str, Path], dynamics) -> dict:
     """The world model with the straight-down insertions' dynamics models in place of the feeling ones': the same
     VAE, goal scorers and other controllers' models (copied), the two insertions' trained on their own rollouts."""
-    import torch
-
-    from policy_composer.selector.train import train_world_model
-
     torch.set_num_threads(2)
     world = out / "world"
     if world.exists():
@@ -444,8 +345,6 @@ def _train_straight(out: Path, inputs: dict[str, Path], dynamics) -> dict:
 
 
 def _evaluate_goal(out: Path, inputs: dict[str, Path], cameras: tuple[str, ...]) -> dict:
-    from policy_composer.selector.evaluate import evaluate_goal_scores
-
     metrics = evaluate_goal_scores(inputs["world-model"] / "world", inputs["full-task-demos"] / "dataset", out, cameras)
     return {"metrics": metrics}
 
@@ -453,8 +352,6 @@ def _evaluate_goal(out: Path, inputs: dict[str, Path], cameras: tuple[str, ...])
 def _table(out: Path, inputs: dict[str, Path], p: Profile, kinds: tuple[str, ...], workers: int, task: str,
            insertion: str = "", columns: tuple[str, ...] | None = None) -> dict:
     """Table I's `columns` (default: all of them) for the rows of `kinds`, into out/controllers.md."""
-    from policy_composer.app.controller_table import SUBTASK_COLUMNS, evaluate_table, paper_table, write_table
-
     rows = evaluate_table(list(kinds), _sources(inputs, task, insertion), p.table_trials, 0, p.resolution,
                           workers=workers, columns=columns or SUBTASK_COLUMNS,
                           column_trials={"insert": p.insert_trials or p.table_trials})
@@ -467,8 +364,6 @@ def _table(out: Path, inputs: dict[str, Path], p: Profile, kinds: tuple[str, ...
 
 def _compose(out: Path, inputs: dict[str, Path], config, seeds: list[int], resolution: int,
              knock_out_step: int | None, workers: int, task: str, insertion: str, world: str) -> dict:
-    from policy_composer.app.composition import compose_library
-
     episodes = compose_library(inputs[world] / "world", _sources(inputs, task, insertion), config, seeds, out,
                                videos=1,
                                resolution=resolution, knock_out_step=knock_out_step, resume=True,
@@ -478,8 +373,6 @@ def _compose(out: Path, inputs: dict[str, Path], config, seeds: list[int], resol
 
 
 def _mdp(out: Path, p: Profile) -> dict:
-    from policy_composer.app import mdp
-
     levels = {"levels": p.mdp_levels} if p.mdp_levels else {}
     s19, heatmaps = mdp.run_experiments(out, p.mdp_episodes_19, p.mdp_episodes_100, **levels)
     return {"mean_planning_steps_19": s19["mean_planning_steps"],

@@ -11,8 +11,11 @@ import json
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from policy_composer.data import atomic
 from policy_composer.selector.core import Selector
@@ -152,8 +155,6 @@ LEVELS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8)
 def heatmap_100(out: Path, levels: tuple[float, ...] = LEVELS, episodes: int = 100, seed: int = 0,
                 dyn_noise_unit: str = "lookahead", progress: bool = True) -> dict:
     """100 states from the middle: mean activations to the goal over a grid of p_dyn x p_goal."""
-    from tqdm import tqdm
-
     L = len(levels)
     mean = np.zeros((L, L))
     rate = np.zeros((L, L))
@@ -207,11 +208,7 @@ def check_claims(mean: np.ndarray, rate: np.ndarray, levels: tuple[float, ...]) 
 # --------------------------------------------------------------------------- figures
 def plot_solution(trace: list[dict], num_states: int, path: Path) -> None:
     """Paper Fig. "MDP solution": per planning step, each controller's predicted end state and the state reached."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     names = [o.name for o in RANDOM_WALK_OPTIONS]
     colors = dict(zip(names, plt.get_cmap("tab10").colors))
     fig, ax = plt.subplots(figsize=(8, 0.9 + 0.7 * len(trace)))
@@ -241,11 +238,7 @@ def plot_solution(trace: list[dict], num_states: int, path: Path) -> None:
 
 def plot_heatmap(mean: np.ndarray, levels: tuple[float, ...], path: Path, dyn_noise_unit: str) -> None:
     """Paper Fig. "Sensitivity to noise": mean activations to the goal, p_dyn x p_goal."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     fig, ax = plt.subplots(figsize=(6, 5))
     im = ax.imshow(mean, cmap="magma", origin="upper")
     ax.set_xticks(range(len(levels)), [f"{p:.1f}" for p in levels])

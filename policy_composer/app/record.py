@@ -14,11 +14,16 @@ from dataclasses import asdict, dataclass, replace
 from functools import partial
 from pathlib import Path
 
+import torch
+from tqdm import tqdm
+
 from policy_composer.app.starts import expert_until, start_state
+from policy_composer.app.workers import Workers
 from policy_composer.data import interrupt, journal
 from policy_composer.data.features import read_sidecar
 from policy_composer.data.lock import one_writer
 from policy_composer.data.recipes import Recipe, RecipeError
+from policy_composer.data.recorder import FrameBuffer, LeRobotWriter
 from policy_composer.policies.arm import run_activation
 from policy_composer.policies.library import (
     LibrarySources,
@@ -59,12 +64,6 @@ def record_recipe(recipe: Recipe, root: str | Path, episodes: int | None = None,
     that contradicts the dataset's is refused. `sources` says where the library's trained models are (the
     "controllers" driver). The episodes run on `workers` processes; the dataset is the same for any number.
     """
-    import torch
-    from tqdm import tqdm
-
-    from policy_composer.app.workers import Workers
-    from policy_composer.data.recorder import LeRobotWriter
-
     torch.set_num_threads(1)  # the encoder threads need the second core
     root = Path(root)
     with one_writer(root):  # a second recording into it stops at once
@@ -165,8 +164,6 @@ class EpisodeRecorder:
     what the recipe keeps of it, or None."""
 
     def __init__(self, recipe: Recipe, settings, sources: LibrarySources, controllers: tuple[str, ...]):
-        from policy_composer.data.recorder import FrameBuffer
-
         task = get_task(recipe.task_name)
         # A resumed dataset keeps its cameras; a controller added to it may read more: rendered, not recorded.
         rendered = tuple(dict.fromkeys((*settings.cameras, *cameras_needed(controllers, sources))))

@@ -11,6 +11,8 @@ import time
 from importlib import metadata
 from pathlib import Path
 
+import markdown
+
 from policy_composer.app.composition import (
     PAPER_COMPOSED,
     back_offs,
@@ -83,8 +85,6 @@ def write_report(out: Path, profile, records: dict[str, StageRecord], wall_secon
 
 
 def to_html(md: str, title: str) -> str:
-    import markdown
-
     body = markdown.markdown(md, extensions=["tables"])
     return f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>{title}</title>

@@ -11,6 +11,7 @@ recording. An actor lost mid-episode (a node gone, a process killed) is restarte
 
 from __future__ import annotations
 
+import ctypes
 import multiprocessing
 import os
 import re
@@ -26,6 +27,10 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+import torch
+
+from policy_composer.app.errors import ClusterError
+
 Runner = Callable[[Any], Any]  # one episode (or trial) from its seed, in a process that built what it needs once
 
 _runner: Runner | None = None
@@ -34,8 +39,15 @@ _ray_address: str | None = None  # the Ray cluster the episode loops run on (see
 RAY_ENV = ("HF_HUB_OFFLINE", "HF_LEROBOT_HOME", "POLICY_COMPOSER_CACHE")
 
 
-class ClusterError(RuntimeError):
-    pass
+def _ray():
+    """Ray, with its multiprocessing pool: imported where the episodes go to a cluster, since it is an optional
+    extra."""
+    try:
+        import ray.util.multiprocessing  # noqa: PLC0415  (optional: the `distributed` extra)
+    except ImportError:
+        raise ClusterError("--ray needs Ray, the project's `distributed` extra: pip install -e '.[distributed]' (or "
+                           "run scripts/setup.sh, which installs it)") from None
+    return ray
 
 
 def use_ray(address: str) -> int:
@@ -43,11 +55,7 @@ def use_ray(address: str) -> int:
     machine belongs to, or "local" for a new one on this machine); returns the cluster's CPUs. Every node needs the
     project installed as here (scripts/setup.sh), at the same path."""
     global _ray_address
-    try:
-        import ray
-    except ImportError:
-        raise ClusterError("--ray needs Ray, the project's `distributed` extra: pip install -e '.[distributed]' (or "
-                           "run scripts/setup.sh, which installs it)") from None
+    ray = _ray()
     if not ray.is_initialized():
         check_reachable(address)
         if address == "local":  # Ray's workers run at niceness 15; on a machine shared with other jobs they starve
@@ -126,9 +134,7 @@ def stop_ray() -> None:
     """Episode loops run on this machine again, and this process leaves the Ray cluster."""
     global _ray_address
     if _ray_address is not None:
-        import ray
-
-        ray.shutdown()
+        _ray().shutdown()
         _ray_address = None
 
 
@@ -145,8 +151,6 @@ def in_process(items: list, workers: int) -> bool:
 def _die_with_parent(parent: int) -> None:
     """Linux: this worker is killed when the parent dies, even by `kill -9` (a pool's workers would otherwise wait
     for work forever)."""
-    import ctypes
-
     try:
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
     except (OSError, AttributeError):
@@ -158,8 +162,6 @@ def _die_with_parent(parent: int) -> None:
 def _start(setup: Callable[[], Runner], parent: int | None) -> None:
     """A worker's start: `parent` is the pid of the process it works for (None: a Ray actor, which Ray stops)."""
     global _runner
-    import torch
-
     if parent is not None:
         _die_with_parent(parent)
     if threading.current_thread() is threading.main_thread():
@@ -196,10 +198,8 @@ class Workers:
             if _ray_address is None:
                 self.pool.terminate()
             else:  # Pool.terminate asks each actor to exit first: a task their restart policy retries, with a warning
-                import ray
-
                 for actor, _ in self.pool._actor_pool:
-                    ray.kill(actor, no_restart=True)
+                    _ray().kill(actor, no_restart=True)
         if self.runner is not None:
             getattr(self.runner, "close", lambda: None)()
 
@@ -219,11 +219,10 @@ class Workers:
 
     def _ray_pool(self):
         """Ray actors, a core each, restarted when lost, with the episode they were running tried again."""
-        from ray.util.multiprocessing import Pool
-
+        actors = _ray().util.multiprocessing.Pool
         try:
-            return Pool(self.workers, initializer=_start, initargs=(self.setup, None),
-                        ray_remote_args={"num_cpus": 1, "max_restarts": -1, "max_task_retries": -1})
+            return actors(self.workers, initializer=_start, initargs=(self.setup, None),
+                          ray_remote_args={"num_cpus": 1, "max_restarts": -1, "max_task_retries": -1})
         except ValueError as e:  # more workers than the cluster has CPUs
             raise ClusterError(f"{e}: pass --workers at most the cluster's CPUs") from None
 

@@ -3,12 +3,27 @@
 
 from __future__ import annotations
 
+import json
 import re
+import shutil
+import urllib.error
+import urllib.request
+from importlib.metadata import version
 from pathlib import Path
 
+import pyarrow.parquet as pq
+import rerun as rr
+from huggingface_hub import constants
+from lerobot.datasets.dataset_tools import delete_episodes
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from lerobot.datasets.utils import DatasetInfo, create_lerobot_dataset_card
+from lerobot.scripts.lerobot_dataset_viz import visualize_dataset
+
 from policy_composer.data import journal
-from policy_composer.data.features import DatasetError, read_info, read_sidecar, verify_dataset
+from policy_composer.data.features import SIDECAR, DatasetError, read_info, read_sidecar
 from policy_composer.data.lock import one_writer
+from policy_composer.data.recipes import RecipeError, load_recipe
+from policy_composer.data.verify import data_digests, open_dataset, verify_dataset
 from policy_composer.tasks.base import TaskSpec
 from policy_composer.tasks.registry import DEFAULT_TASK, TASKS, get_spec
 
@@ -23,8 +38,6 @@ def _episode_success(root: Path, info: dict) -> list[bool] | None:
     """Per episode, whether its last frame is a success (None if the dataset has no `next.success`)."""
     if "next.success" not in info["features"]:
         return None
-    import pyarrow.parquet as pq
-
     last: dict[int, bool] = {}
     for path in sorted((root / "data").rglob("*.parquet")):
         table = pq.read_table(path, columns=["episode_index", "frame_index", "next.success"]).to_pydict()
@@ -116,15 +129,10 @@ def format_summary(summary: dict) -> str:
 
 
 def _check_hub_reachable(root: Path) -> None:
-    from huggingface_hub import constants
-
     intact = f"nothing was uploaded; the local dataset at {root} is intact"
     if constants.HF_HUB_OFFLINE:
         raise HubUnreachable(f"the Hugging Face Hub is unreachable: HF_HUB_OFFLINE=1 is set. Unset it on a machine "
                              f"with internet access and log in (`hf auth login`) to push; {intact}")
-    import urllib.error
-    import urllib.request
-
     try:
         urllib.request.urlopen(urllib.request.Request(constants.ENDPOINT, method="HEAD"), timeout=5)
     except urllib.error.HTTPError:
@@ -161,10 +169,6 @@ def card_fields(root: str | Path) -> dict[str, str]:
     summary, sidecar = summarize(root), read_sidecar(root)
     if not sidecar:
         return {"dataset_description": _foreign_description(summary)}
-    from importlib.metadata import version
-
-    from policy_composer.data.recipes import RecipeError, load_recipe
-
     try:
         recipe = load_recipe(summary["recipe"]) if summary["recipe"] else None
     except RecipeError:  # a recipe of the user's own, not shipped with this version
@@ -212,8 +216,6 @@ def _foreign_description(summary: dict) -> str:
 
 def dataset_card(root: str | Path, repo_id: str | None = None):
     """The card `dataset push` uploads, built offline (a huggingface_hub DatasetCard)."""
-    from lerobot.datasets.utils import DatasetInfo, create_lerobot_dataset_card
-
     return create_lerobot_dataset_card(tags=card_tags(root), dataset_info=DatasetInfo.from_dict(read_info(root)),
                                        license="apache-2.0", repo_id=repo_id, **card_fields(root))
 
@@ -238,10 +240,6 @@ def view_dataset(root: str | Path, episode: int, out: str | Path | None = None) 
     """LeRobot's viewer (rerun) on one episode of a recorded dataset: every camera, the state and the action as
     `lerobot-dataset-viz` shows them, and this project's labels (`progress`, `stage`, `controller`) beside them on
     the same timeline. Saved as an .rrd file in `out` (returned), or shown in a rerun viewer."""
-    import rerun as rr
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-    from lerobot.scripts.lerobot_dataset_viz import visualize_dataset
-
     root = Path(root)
     journal.recover(root)
     info = read_info(root)
@@ -269,8 +267,6 @@ def push_dataset(root: str | Path, repo_id: str, private: bool = False, branch: 
     journal.recover(root)
     read_info(root)  # a clear error if this is no dataset
     _check_hub_reachable(root)
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
     dataset = LeRobotDataset(repo_id, root=root)
     dataset.push_to_hub(branch=branch, private=private, tags=card_tags(root), **card_fields(root))
     return f"https://huggingface.co/datasets/{repo_id}"
@@ -279,8 +275,6 @@ def push_dataset(root: str | Path, repo_id: str, private: bool = False, branch: 
 def episode_controllers(root: Path, info: dict, sidecar: dict) -> list[str | None]:
     """Per episode, the controller it records: the one its rollout ran, or the one that produced all its frames
     (a demonstration's expert); None for an episode several controllers drove."""
-    import pyarrow.parquet as pq
-
     episodes, names = sidecar.get("episodes", []), sidecar.get("controllers", [])
     if all("controller_name" in e for e in episodes):
         return [e["controller_name"] for e in episodes]
@@ -304,13 +298,6 @@ def drop_controller(root: str | Path, controller: str) -> int:
 
 
 def _drop_controller(root: Path, controller: str) -> int:
-    import json
-    import shutil
-
-    from lerobot.datasets.dataset_tools import delete_episodes
-
-    from policy_composer.data.features import SIDECAR, data_digests, open_dataset
-
     journal.recover(root)
     info, sidecar = read_info(root), read_sidecar(root)
     unfit = provenance(info, sidecar)

@@ -12,8 +12,10 @@ from pathlib import Path
 
 import torch
 import torch.nn.functional as F
+from tqdm import tqdm
 
-from policy_composer.data.features import DatasetError, image_key, open_dataset
+from policy_composer.data.features import DatasetError, image_key
+from policy_composer.data.verify import open_dataset
 
 LABELS = ("observation.state", "action", "progress", "stage", "gear_offset", "predicates", "controller",
           "episode_index", "frame_index")
@@ -49,8 +51,6 @@ def load_frames(root: str | Path, cameras: tuple[str, ...], size: int, episodes:
     """Every frame of `episodes` (default: all): one uint8 (N, 3, size, size) tensor per camera (of its `window`,
     see to_model_image) under its image key, and each label of LABELS the dataset has, flattened to (N,) where it
     is a scalar."""
-    from tqdm import tqdm
-
     keys = [image_key(c) for c in cameras]
     ds = open_dataset(root, required={**{k: None for k in keys}, **(required or {})}, episodes=episodes)
     loader = torch.utils.data.DataLoader(ds, batch_size=64, shuffle=False, num_workers=0)

@@ -19,24 +19,20 @@ import json
 import queue
 import warnings
 from contextlib import contextmanager
-from functools import cache
 from pathlib import Path
 
+import av
+import datasets
 import gymnasium as gym
 import numpy as np
 import torch
+from lerobot.configs.video import RGBEncoderConfig
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from lerobot.datasets.video_utils import StreamingVideoEncoder
 
 from policy_composer.data import interrupt, journal
-from policy_composer.data.features import (
-    SIDECAR,
-    DatasetError,
-    check_videos,
-    data_digests,
-    dataset_features,
-    image_key,
-    read_info,
-    read_sidecar,
-)
+from policy_composer.data.features import SIDECAR, DatasetError, dataset_features, image_key, read_info, read_sidecar
+from policy_composer.data.verify import check_videos, data_digests
 from policy_composer.tasks.registry import DEFAULT_TASK, get_spec, task_of
 
 VCODEC = "h264"  # not "auto": it picks NVENC and fails without a GPU
@@ -45,8 +41,6 @@ VCODEC = "h264"  # not "auto": it picks NVENC and fails without a GPU
 @contextmanager
 def _quiet_lerobot():
     """Keep a recording's terminal to its progress bar: no per-episode encoder stats, map bars or bool warnings."""
-    import av
-
     av.logging.set_libav_level(av.logging.ERROR)  # lerobot restores the default callback, which obeys this
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", "Converting input from bool", RuntimeWarning)
@@ -137,44 +131,39 @@ class FrameBuffer(gym.Wrapper):
         return frames
 
 
-@cache
-def _lossless_dataset_class():
-    """LeRobotDataset whose streaming encoder never drops a frame (lerobot is imported only when writing)."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-    from lerobot.datasets.video_utils import StreamingVideoEncoder
+class LosslessEncoder(StreamingVideoEncoder):
+    """lerobot's per-camera encoder threads, with a writer that waits for them however long they take:
+    `feed_frame` blocks while the queue is full (lerobot's drops the frame after 0.1 s), and `finish_episode`
+    waits for every thread to finish (lerobot's gives up after 120 s and keeps a truncated file)."""
 
-    class LosslessEncoder(StreamingVideoEncoder):
-        """lerobot's per-camera encoder threads, with a writer that waits for them however long they take:
-        `feed_frame` blocks while the queue is full (lerobot's drops the frame after 0.1 s), and `finish_episode`
-        waits for every thread to finish (lerobot's gives up after 120 s and keeps a truncated file)."""
+    def _put(self, video_key: str, item) -> bool:
+        """Put `item` on the camera's queue, waiting as long as its encoder runs; False if it has stopped."""
+        while self._episode_active and self._threads[video_key].is_alive():
+            try:
+                self._frame_queues[video_key].put(item, timeout=1.0)
+                return True
+            except queue.Full:
+                continue
+        return False
 
-        def _put(self, video_key: str, item) -> bool:
-            """Put `item` on the camera's queue, waiting as long as its encoder runs; False if it has stopped."""
-            while self._episode_active and self._threads[video_key].is_alive():
-                try:
-                    self._frame_queues[video_key].put(item, timeout=1.0)
-                    return True
-                except queue.Full:
-                    continue
-            return False
+    def feed_frame(self, video_key: str, image: np.ndarray) -> None:
+        if not self._put(video_key, image.copy()):
+            super().feed_frame(video_key, image)  # no episode, or a crashed encoder: lerobot raises its error
 
-        def feed_frame(self, video_key: str, image: np.ndarray) -> None:
-            if not self._put(video_key, image.copy()):
-                super().feed_frame(video_key, image)  # no episode, or a crashed encoder: lerobot raises its error
+    def finish_episode(self):
+        for video_key in self._threads:
+            if self._put(video_key, None):  # lerobot's end-of-episode sentinel
+                self._threads[video_key].join()
+        return super().finish_episode()  # its sentinels and joins find the threads done; it collects results
 
-        def finish_episode(self):
-            for video_key in self._threads:
-                if self._put(video_key, None):  # lerobot's end-of-episode sentinel
-                    self._threads[video_key].join()
-            return super().finish_episode()  # its sentinels and joins find the threads done; it collects results
 
-    class LosslessDataset(LeRobotDataset):
-        @staticmethod
-        def _build_streaming_encoder(fps, rgb_encoder, depth_encoder, encoder_queue_maxsize, encoder_threads):
-            return LosslessEncoder(fps=fps, rgb_encoder=rgb_encoder, depth_encoder=depth_encoder,
-                                   queue_maxsize=encoder_queue_maxsize, encoder_threads=encoder_threads)
+class LosslessDataset(LeRobotDataset):
+    """LeRobotDataset whose streaming encoder never drops a frame."""
 
-    return LosslessDataset
+    @staticmethod
+    def _build_streaming_encoder(fps, rgb_encoder, depth_encoder, encoder_queue_maxsize, encoder_threads):
+        return LosslessEncoder(fps=fps, rgb_encoder=rgb_encoder, depth_encoder=depth_encoder,
+                               queue_maxsize=encoder_queue_maxsize, encoder_threads=encoder_threads)
 
 
 class LeRobotWriter:
@@ -183,8 +172,6 @@ class LeRobotWriter:
     def __init__(self, root: str | Path, task: str, fps: int, resolution: int, cameras: tuple[str, ...],
                  repo_id: str | None = None, resume: bool = False, metadata: dict | None = None,
                  vcodec: str = VCODEC, streaming_encoding: bool = True, task_name: str = DEFAULT_TASK):
-        from lerobot.configs.video import RGBEncoderConfig
-
         self.video = {"rgb_encoder": RGBEncoderConfig(vcodec=vcodec), "streaming_encoding": streaming_encoding}
         self.root, self.task, self.fps, self.cameras = Path(root), task, fps, tuple(cameras)
         self.features = dataset_features(get_spec(task_name), self.cameras, resolution)
@@ -256,9 +243,6 @@ class LeRobotWriter:
 
     def _write(self, frames: list[dict]) -> None:
         """Add the labelled frames as one LeRobot episode and check that its videos hold every one of them."""
-        import datasets
-
-        LosslessDataset = _lossless_dataset_class()
         if self.root.exists():  # lerobot's resume path: this episode goes into new files
             dataset = LosslessDataset.resume(self.repo_id, root=self.root, **self.video)
         else:

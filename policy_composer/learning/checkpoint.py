@@ -17,24 +17,23 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, fields
 from pathlib import Path
-from typing import TYPE_CHECKING, TypeVar
+from typing import TypeVar
+
+import torch
+from safetensors import safe_open
+from safetensors.torch import save_file
+from torch import nn
 
 from policy_composer.data.atomic import FolderTaken, check_replaceable, replacing_folder, safetensors_errors
 from policy_composer.data.lock import one_writer
 from policy_composer.learning.config import ADDED_FIELDS
+from policy_composer.learning.errors import CheckpointError
 from policy_composer.learning.training import is_main_process, processes, wait_for_everyone
-
-if TYPE_CHECKING:  # torch is imported where a model is saved or built, so that the command line starts fast
-    from torch import nn
 
 C = TypeVar("C")
 
 
 CHECKPOINT_FILES = ("model.safetensors", "config.json", "train_log.json")
-
-
-class CheckpointError(ValueError):
-    """A checkpoint that is missing, of another kind of model, or from another configuration."""
 
 
 def check_out(out: str | Path, config_cls: type) -> None:
@@ -68,8 +67,6 @@ def save_checkpoint(model: nn.Module, config, out: str | Path, log: dict | None 
                     trained_with: dict[str, str] | None = None) -> Path:
     """Write the model to `out` as a whole; `trained_with` names (by `weights_id`) the models it was trained with.
     Trained data-parallel, the first process writes it and the others wait until it is there."""
-    from safetensors.torch import save_file
-
     out = Path(out)
     if is_main_process():
         check_out(out, type(config))
@@ -146,8 +143,6 @@ def finished(path: str | Path, config, made_with: dict[str, str] | None = None) 
 def load_checkpoint(path: str | Path, config_cls: type[C], build: Callable[[C], nn.Module], what: str,
                     train_hint: str) -> nn.Module:
     """Build the model from the checkpoint's config and load its weights, in eval mode."""
-    from safetensors import safe_open
-
     config = load_config(path, config_cls, what, train_hint)
     model = build(config)
     weights = Path(path) / "model.safetensors"
@@ -173,8 +168,6 @@ def load_checkpoint(path: str | Path, config_cls: type[C], build: Callable[[C], 
 def check_finite(path: Path, tensors: dict, fix: str) -> None:
     """Refuse weights holding NaN or Inf (a damaged file, or a training that diverged): a model computing with them
     runs, but every decision made from it is noise."""
-    import torch
-
     as_tensors = {name: torch.as_tensor(t) for name, t in tensors.items()}
     bad = [name for name, t in as_tensors.items() if t.is_floating_point() and not torch.isfinite(t).all()]
     if bad:

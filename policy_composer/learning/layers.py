@@ -11,6 +11,7 @@ import math
 import torch
 import torch.nn.functional as F
 from torch import nn
+from torchvision.models import resnet18
 
 
 class SpatialSoftmax(nn.Module):
@@ -33,8 +34,6 @@ def image_encoder(backbone: str, out_dim: int, in_channels: int = 3) -> nn.Modul
     things precisely; "small": four strided convolutions pooled to 2x2, for global judgements (the goal score);
     "resnet18": torchvision's, randomly initialised."""
     if backbone == "resnet18":
-        from torchvision.models import resnet18
-
         net = resnet18(weights=None)  # no download: trained from scratch on our demonstrations
         net.fc = nn.Linear(net.fc.in_features, out_dim)
         return net

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
+from safetensors.torch import load_file, save_file
 from torch import nn
 
 from policy_composer.data.atomic import replacing_folder, safetensors_errors
@@ -43,8 +44,6 @@ class Snapshots:
     def save(self, epoch: int, losses: list[float], model: nn.Module, optimizer: torch.optim.Optimizer, schedule,
              generator: torch.Generator) -> None:
         """The state after `epoch` epochs (`losses` theirs)."""
-        from safetensors.torch import save_file
-
         opt = optimizer.state_dict()
         moments = {f"{i}.{k}": v.contiguous() for i, state in opt["state"].items() for k, v in state.items()}
         with replacing_folder(self.folder) as tmp, safetensors_errors(self.folder):
@@ -61,8 +60,6 @@ class Snapshots:
                 generator: torch.Generator) -> tuple[int, list[float]]:
         """Load the snapshot of this training into the objects; returns its epoch and losses ((0, []) if there is
         none, or it is of another training)."""
-        from safetensors.torch import load_file
-
         try:
             state = json.loads((self.folder / "state.json").read_text())
         except (OSError, ValueError):

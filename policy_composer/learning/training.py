@@ -16,21 +16,18 @@ import os
 from collections.abc import Callable
 
 import torch
+from accelerate import PartialState
 from torch import nn
+from tqdm import tqdm
 
+from policy_composer.learning.errors import TrainingDiverged
 from policy_composer.learning.snapshot import Snapshots
-
-
-class TrainingDiverged(ValueError):
-    """A loss that is not finite: every weight after it would be noise, so the training stops and saves nothing."""
 
 
 def data_parallel():
     """Accelerate's state of the training processes a launcher started, or None when training runs as one."""
     if int(os.environ.get("WORLD_SIZE", "1")) <= 1:
         return None
-    from accelerate import PartialState
-
     return PartialState(cpu=True)  # the models train on the CPU: gloo
 
 
@@ -95,8 +92,6 @@ def fit_epochs(model: nn.Module, optimizer: torch.optim.Optimizer, n: int, batch
     """Train `model` for `epochs` over `n` rows; `loss_fn(rows)` gives a batch's mean loss. Returns the
     per-epoch mean loss and leaves the model in eval mode. With `snapshots` (one process only), the training
     starts from its last snapshot, if any, and writes one now and then."""
-    from tqdm import tqdm
-
     state = data_parallel()
     rank, world = (state.process_index, state.num_processes) if state is not None else (0, 1)
     params = [p for p in model.parameters() if p.requires_grad]

@@ -6,9 +6,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
+import gymnasium as gym
 import numpy as np
 import torch
 
+import policy_composer.tasks.gear_assembly.env  # noqa: F401  (registers GearAssembly-v1)
 from policy_composer.tasks.base import episode_limit  # noqa: F401  (the episode runs' step limit)
 from policy_composer.tasks.gear_assembly.spec import EnvSettings
 
@@ -30,10 +32,6 @@ class Policy(Protocol):
 def make_env(obs_mode: str, resolution: int = EnvSettings.resolution, clearance_mm: float = EnvSettings.clearance_mm,
              cameras: tuple[str, ...] | None = None, **kwargs):
     """GearAssembly-v1 with square cameras of `resolution` pixels (all three unless `cameras` names some)."""
-    import gymnasium as gym
-
-    import policy_composer.tasks.gear_assembly.env  # noqa: F401  (registers GearAssembly-v1)
-
     if cameras is not None:
         kwargs["cameras"] = tuple(cameras)
     return gym.make("GearAssembly-v1", obs_mode=obs_mode, camera_width=resolution, camera_height=resolution,

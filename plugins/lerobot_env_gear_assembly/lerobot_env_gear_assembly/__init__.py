@@ -12,10 +12,14 @@ from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 
-from lerobot.configs import FeatureType, PolicyFeature
+import gymnasium as gym
+from gymnasium.vector import AutoresetMode
+from lerobot.configs import FeatureType, PolicyFeature, parser
 from lerobot.envs.configs import EnvConfig
 from lerobot.utils.constants import ACTION, OBS_IMAGES, OBS_STATE
 
+from policy_composer.learning.config import refuse
+from policy_composer.tasks.gear_assembly.lerobot_env import GearAssemblyLeRobotEnv, check_settings
 from policy_composer.tasks.gear_assembly.spec import ACTION_NAMES, CAMERA_NAMES, STATE_NAMES
 
 
@@ -30,9 +34,6 @@ class GearAssemblyEnv(EnvConfig):
     episode_length: int | None = None  # control steps before an episode is cut off (None: the task's, 200 or 400)
 
     def __post_init__(self):
-        from policy_composer.learning.config import refuse
-        from policy_composer.tasks.gear_assembly.lerobot_env import check_settings
-
         try:  # here, before lerobot-eval loads the policy, rather than when it builds the env
             check_settings(self.task, self.resolution, self.cameras, self.clearance_mm, self.episode_length)
         except ValueError as e:
@@ -71,16 +72,9 @@ class GearAssemblyEnv(EnvConfig):
 
     def create_envs(self, n_envs: int, use_async_envs: bool = False):
         """{"gear_assembly": {0: a vector of n_envs envs}}, built directly (no gym registry entry to look up)."""
-        import gymnasium as gym
-        from lerobot.configs import parser
-
         policy = parser.get_path_arg("policy")  # lerobot-eval's --policy.path, read the way lerobot reads it
         for problem in self.policy_mismatches(policy) if policy else []:
             logging.warning(f"gear_assembly: the policy at {policy} will not see what it was trained on: {problem}")
-        from gymnasium.vector import AutoresetMode
-
-        from policy_composer.tasks.gear_assembly.lerobot_env import GearAssemblyLeRobotEnv
-
         make = partial(GearAssemblyLeRobotEnv, **self.gym_kwargs)
         if use_async_envs and n_envs > 1:
             vec = gym.vector.AsyncVectorEnv([make] * n_envs, autoreset_mode=AutoresetMode.SAME_STEP,

@@ -1,4 +1,7 @@
-"""The ``policy-composer`` command line: one module per command group, each adding its commands to the parser."""
+"""The ``policy-composer`` command line: one module per command group, each adding its commands to the parser.
+
+Building the parser imports only light modules (names, configs, recipes; no simulator, torch or LeRobot), so that
+`--help` and the flags' checks answer at once: a command imports what it runs when it runs."""
 
 from __future__ import annotations
 
@@ -8,6 +11,13 @@ import os
 import sys
 
 from policy_composer.app.cli import compose, dataset, evaluate, experiments, record, train
+from policy_composer.app.errors import ClusterError, RunError
+from policy_composer.data.atomic import FolderTaken
+from policy_composer.data.features import DatasetError
+from policy_composer.data.interrupt import flag_interrupts
+from policy_composer.data.lock import FolderBusy
+from policy_composer.data.recipes import RecipeError
+from policy_composer.learning.errors import CheckpointError, TrainingDiverged
 from policy_composer.policies.registry import LibraryError
 
 DISK_ERRORS = (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO)
@@ -25,16 +35,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from policy_composer.app.composition import RunError
-    from policy_composer.app.workers import ClusterError
-    from policy_composer.data.atomic import FolderTaken
-    from policy_composer.data.features import DatasetError
-    from policy_composer.data.interrupt import flag_interrupts
-    from policy_composer.data.lock import FolderBusy
-    from policy_composer.data.recipes import RecipeError
-    from policy_composer.learning.checkpoint import CheckpointError
-    from policy_composer.learning.training import TrainingDiverged
-
     args = build_parser().parse_args(argv)
     if not getattr(args, "online", False):  # everything but an upload works offline
         os.environ.setdefault("HF_HUB_OFFLINE", "1")

@@ -9,13 +9,15 @@ from pathlib import Path
 
 from policy_composer.app.arguments import at_least
 from policy_composer.app.cli.options import env_options, episode_workers, make_env, make_expert, workers_option
-from policy_composer.app.demo import PROFILES, run_demo
+from policy_composer.app.profiles import PROFILES
 from policy_composer.data import atomic
 from policy_composer.tasks.registry import DEFAULT_TASK, TASKS
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
     """The main job: the whole paper, stage by stage (finished stages are reused), then the report."""
+    from policy_composer.app.demo import run_demo
+
     out = args.out or ("results" if args.task == DEFAULT_TASK else f"results-{args.task}")
     try:
         _, report = run_demo(args.profile, out, episode_workers(args), args.task)

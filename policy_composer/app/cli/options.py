@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
+from safetensors import safe_open
+
 from policy_composer.app.arguments import at_least, between
-from policy_composer.policies.library import MODELS, LeRobotSource, LibrarySources
 from policy_composer.policies.registry import LibraryError, kinds
+from policy_composer.policies.sources import MODELS, LeRobotSource, LibrarySources
 from policy_composer.tasks.gear_assembly.spec import CLEARANCE_MM, GRASP_OFFSET_MM, RESOLUTION, EnvSettings
 from policy_composer.tasks.registry import DEFAULT_TASK, TASKS
 
@@ -59,10 +62,6 @@ def lerobot_source(spec: str) -> LeRobotSource:
 def check_readable(path: Path) -> None:
     """A LeRobot checkpoint's config and weights files read (a damaged one is named before any work starts; loading
     the policy, later and in each worker, says more)."""
-    import json
-
-    from safetensors import safe_open
-
     fix = "train the policy again with lerobot-train, or restore the checkpoint from a copy"
     try:
         config = json.loads((path / "config.json").read_text())

@@ -4,21 +4,19 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import fields, replace
 from pathlib import Path
 
 from policy_composer.app.arguments import at_least, names
 from policy_composer.app.cli.options import env_options, episode_workers, library_sources, model_options, workers_option
-from policy_composer.data.recipes import available_recipes
+from policy_composer.data.features import read_sidecar
+from policy_composer.data.recipes import RecipeError, available_recipes, load_recipe
 
 
 def cmd_record(args: argparse.Namespace) -> int:
     """Record a recipe's dataset (see datasets/recipes/) into a LeRobotDataset."""
-    from dataclasses import fields, replace
-
     from policy_composer.app.record import recipe_controllers, record_recipe
     from policy_composer.data.catalog import format_summary, summarize
-    from policy_composer.data.features import read_sidecar
-    from policy_composer.data.recipes import RecipeError, load_recipe
 
     recipe = load_recipe(args.recipe)
     sources = library_sources(args, recipe.task_name)

@@ -8,17 +8,18 @@ from dataclasses import replace
 
 from policy_composer.app.arguments import add_config_options, at_least, config_from, names
 from policy_composer.app.cli.options import WORLD, dataset_path, env_options, make_env, training_threads
+from policy_composer.data.atomic import check_replaceable
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 from policy_composer.policies.dmp.configuration_dmp import FIT_EPISODES, FIT_FIRST_SEED
-from policy_composer.policies.library import MODELS
+from policy_composer.policies.sources import MODELS
 from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, PredicateConfig, VAEConfig
 from policy_composer.tasks.gear_assembly.spec import CAMERA_NAMES
+from policy_composer.tasks.registry import get_spec
 
 
 def cmd_train_policy(args: argparse.Namespace) -> int:
     """Behaviour-clone the CNN policy of one subtask on its demonstrations."""
     from policy_composer.policies.cnn.train import train_cnn_policy
-    from policy_composer.tasks.registry import get_spec
 
     training_threads(args.threads)
     config = config_from(args, CNNPolicyConfig)
@@ -33,7 +34,6 @@ def cmd_train_policy(args: argparse.Namespace) -> int:
 
 def cmd_train_dmp(args: argparse.Namespace) -> int:
     """Fit the DMP library to the motion planner's trajectories."""
-    from policy_composer.data.atomic import check_replaceable
     from policy_composer.learning.checkpoint import model_writer
     from policy_composer.policies.dmp.controller import DMP_FILES, fit_dmp_library
 
