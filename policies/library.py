@@ -12,8 +12,7 @@ from pathlib import Path
 
 from policy_composer.learning.checkpoint import weights_id
 from policy_composer.policies.base import Controller
-from policy_composer.policies.lerobot_policy.controller import LeRobotPolicyController, lerobot_cameras
-from policy_composer.policies.registry import LibraryError, kind_of
+from policy_composer.policies.registry import LibraryError, kind_of, kind_of_source
 from policy_composer.policies.senses import OracleSenses, Senses
 from policy_composer.policies.sources import (
     MODELS,
@@ -53,7 +52,7 @@ def cameras_needed(names, sources: LibrarySources) -> tuple[str, ...]:
         cameras += kind.function("cameras")(models[kind])
     for source in sources.lerobot:
         if source.controller_name in names:
-            cameras += lerobot_cameras(source.path)
+            cameras += kind_of_source(source).function("cameras")(source)
     return tuple(dict.fromkeys(cameras))
 
 
@@ -91,13 +90,14 @@ def build_library(env, names=None, sources: LibrarySources | None = None,
     the task's predicates through `senses` (default: the simulator's truth, as for recording)."""
     sources = sources or LibrarySources()
     senses = senses or OracleSenses(env)
-    lerobot = {s.controller_name: s for s in sources.lerobot}
+    checkpoints = {s.controller_name: s for s in sources.lerobot}
     names = tuple(names) if names is not None else all_names(sources)
     models, library = _Models(sources), {}
     for name in names:
-        if name in lerobot:
-            src = lerobot[name]
-            library[name] = LeRobotPolicyController(env, src.path, sources.subtask(src.subtask), name=name)
+        if name in checkpoints:
+            source = checkpoints[name]
+            library[name] = kind_of_source(source).function("build")(env, sources.subtask(source.subtask), None,
+                                                                      source, sources.max_grasp_offset)
             continue
         kind = kind_of(name)
         if kind is None:

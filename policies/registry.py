@@ -7,6 +7,12 @@ holds `build(env, subtask, model, config, max_grasp_offset)`, plus `load(path)` 
 `cameras(model)` for one whose model reads cameras. Its controllers are named `KIND_SUBTASK` (mp_pick, cnn_insert).
 Reading the registry imports only the configuration modules, so the command line's flags do not load the simulator.
 
+A checkpoint kind (LeRobot's policies) has no controller per subtask: its controllers are the checkpoints the user
+brings (`LibrarySources.lerobot`), each an instance of its config that names the checkpoint and its subtask. Its
+`build` gets that instance as `config` (and no model), `cameras(config)` reads the checkpoint's cameras and
+`label(config)` its row in Table I, one row per checkpoint. It is left out of `kinds()`, which the flags, the
+library's names and Table I's rows of kinds read.
+
 To add a kind: write its folder and add its name to `BUILTIN_KINDS`. A kind in another package names its
 configuration module in a `policy_composer.controller_kinds` entry point.
 """
@@ -20,7 +26,7 @@ from importlib.metadata import entry_points
 from typing import Any
 
 # The built-in kinds, in Table I's order; `policies/KIND/configuration_KIND.py` registers each.
-BUILTIN_KINDS = ("mp", "dmp", "cnn")
+BUILTIN_KINDS = ("mp", "dmp", "cnn", "lerobot_policy")
 ENTRY_POINT_GROUP = "policy_composer.controller_kinds"
 
 
@@ -38,13 +44,15 @@ class ControllerKind:
     planned: bool = False  # its insertion goes down the peg as LibrarySources.insertion says (MP, DMP)
     module: str = ""  # where build, load and cameras are; default: `controller` beside the configuration
     demonstrated: bool = False  # it serves only the subtasks its task has demonstrations of (TaskSpec.demonstrations)
+    checkpoints: bool = False  # its controllers are checkpoints the user brings, each an instance of `config`
 
     @property
     def controller_names(self) -> tuple[str, ...]:
         return tuple(f"{self.name}_{s}" for s in self.subtasks)
 
     def function(self, role: str) -> Callable[..., Any] | None:
-        """The controller module's `build`, `load` or `cameras` (None where the kind has no such function)."""
+        """The controller module's `build`, `load`, `cameras` or `label` (None where the kind has no such
+        function)."""
         module = self.module or self.config.__module__.rpartition(".")[0] + ".controller"
         return getattr(import_module(module), role, None)
 
@@ -54,11 +62,12 @@ _loaded = False
 
 
 def register_kind(name: str, label: str, subtasks: tuple[str, ...], trained: bool = False, planned: bool = False,
-                  module: str = "", demonstrated: bool = False):
+                  module: str = "", demonstrated: bool = False, checkpoints: bool = False):
     """Decorate a kind's configuration class to add the kind to the registry (once per name)."""
 
     def register(config: type) -> type:
-        kind = ControllerKind(name, label, tuple(subtasks), config, trained, planned, module, demonstrated)
+        kind = ControllerKind(name, label, tuple(subtasks), config, trained, planned, module, demonstrated,
+                              checkpoints)
         if name in _KINDS and _KINDS[name] != kind:
             raise LibraryError(f"controller kind {name!r} is registered twice")
         _KINDS[name] = kind
@@ -67,7 +76,7 @@ def register_kind(name: str, label: str, subtasks: tuple[str, ...], trained: boo
     return register
 
 
-def kinds() -> dict[str, ControllerKind]:
+def _registered() -> dict[str, ControllerKind]:
     """Every registered kind, by name: the built-in kinds first, in Table I's order."""
     global _loaded
     if not _loaded:
@@ -78,6 +87,19 @@ def kinds() -> dict[str, ControllerKind]:
             ep.load()
     order = [n for n in BUILTIN_KINDS if n in _KINDS] + [n for n in _KINDS if n not in BUILTIN_KINDS]
     return {n: _KINDS[n] for n in order}
+
+
+def kinds() -> dict[str, ControllerKind]:
+    """Every registered kind with a controller per subtask, by name: the built-in kinds first, in Table I's order."""
+    return {n: k for n, k in _registered().items() if not k.checkpoints}
+
+
+def kind_of_source(config) -> ControllerKind:
+    """The checkpoint kind whose config `config` is (a LeRobotSource: the LeRobot policy kind)."""
+    for kind in _registered().values():
+        if kind.checkpoints and isinstance(config, kind.config):
+            return kind
+    raise LibraryError(f"no controller kind runs a {type(config).__name__}")
 
 
 def get_kind(name: str) -> ControllerKind:

@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from policy_composer.policies.lerobot_policy.configuration_lerobot_policy import LeRobotSource
 from policy_composer.policies.registry import LibraryError, get_kind, kind_of, kinds
 from policy_composer.tasks.base import Subtask, TaskDescription
 from policy_composer.tasks.registry import DEFAULT_TASK, get_task
@@ -16,24 +17,11 @@ MODELS = Path("results/models")
 
 
 @dataclass(frozen=True)
-class LeRobotSource:
-    """A lerobot checkpoint to run as a controller for one subtask."""
-
-    path: str
-    subtask: str = "insert"
-    name: str | None = None  # default: lerobot_<subtask>
-
-    @property
-    def controller_name(self) -> str:
-        return self.name or f"lerobot_{self.subtask}"
-
-
-@dataclass(frozen=True)
 class LibrarySources:
     """The task, where the learned controllers' models are, and how the planned ones perceive the scene."""
 
     models: dict[str, str] = field(default_factory=dict)  # kind name -> model path (default: MODELS/KIND)
-    lerobot: tuple[LeRobotSource, ...] = field(default_factory=tuple)
+    lerobot: tuple[LeRobotSource, ...] = field(default_factory=tuple)  # the LeRobot checkpoints the user brings
     max_grasp_offset: float = 0.012  # the pick-up's perception error along the fingers (m)
     gear_noise: float = 0.0  # noise on the planner's one privileged input (the part's position), per axis (m)
     insertion: str = ""  # how the planned insertions go: a key of the task's `insertions` ("": its first)

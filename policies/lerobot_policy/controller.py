@@ -23,6 +23,7 @@ from lerobot.utils.import_utils import register_third_party_plugins
 
 from policy_composer.data.frames import to_model_image
 from policy_composer.learning.checkpoint import CheckpointError, check_finite
+from policy_composer.policies.lerobot_policy.configuration_lerobot_policy import LeRobotSource
 from policy_composer.policies.subtasks import LearnedController, check_camera
 from policy_composer.tasks.base import Subtask
 from policy_composer.tasks.registry import task_of
@@ -115,3 +116,16 @@ class LeRobotPolicyController(LearnedController):
         action = self.postprocess(self.policy.select_action(self.preprocess(batch)))
         a = action[0].cpu().numpy().astype(np.float64)
         return a[:7], float(np.clip(a[7], -1.0, 1.0))
+
+
+def build(env, subtask: Subtask, model, config: LeRobotSource, max_grasp_offset: float) -> LeRobotPolicyController:
+    """The registry's builder: the checkpoint `config` names, as its controller for `subtask`."""
+    return LeRobotPolicyController(env, config.path, subtask, name=config.controller_name)
+
+
+def cameras(config: LeRobotSource) -> tuple[str, ...]:
+    return lerobot_cameras(config.path)
+
+
+def label(config: LeRobotSource) -> str:
+    return lerobot_label(config.path)

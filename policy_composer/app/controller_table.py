@@ -24,8 +24,8 @@ from policy_composer.app.workers import run_episodes
 from policy_composer.data import atomic
 from policy_composer.policies.arm import Outcome, run_activation
 from policy_composer.policies.base import InitiationError
-from policy_composer.policies.lerobot_policy.controller import lerobot_label
 from policy_composer.policies.library import build_library, cameras_needed, names_of_kind, subtask_of
+from policy_composer.policies.registry import kind_of_source
 from policy_composer.policies.senses import OracleSenses
 from policy_composer.selector.predicates import LearnedSenses, load_predicates
 from policy_composer.tasks.base import TaskDescription
@@ -165,7 +165,7 @@ def evaluate_table(kinds: list[str], sources, trials: int, first_seed: int = 0, 
                    predicates: str | Path | None = None) -> dict[str, dict[str, Cell]]:
     """Rows of Table I: one for each of `kinds` (MP, DMP, CNN), then one for each LeRobot checkpoint in `sources`."""
     rows = {kind: names_of_kind(kind, sources.task) for kind in kinds}
-    rows.update({lerobot_label(s.path): (s.controller_name,) for s in sources.lerobot})
+    rows.update({kind_of_source(s).function("label")(s): (s.controller_name,) for s in sources.lerobot})
     return evaluate_rows(rows, sources, trials, first_seed, resolution, clearance_mm, progress, workers, columns,
                          column_trials, predicates)
 
