@@ -9,7 +9,6 @@ latents where the decoder (and so the goal score) understands them.
 from __future__ import annotations
 
 import copy
-import time
 from pathlib import Path
 
 import torch
@@ -17,9 +16,9 @@ import torch.nn.functional as F
 from torch import nn
 
 from policy_composer.data.frames import episode_bounds
-from policy_composer.learning.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from policy_composer.learning.checkpoint import CheckpointError, load_checkpoint
 from policy_composer.learning.layers import MixtureDensityHead, MixtureDensityMLP
-from policy_composer.learning.training import adam, fit_epochs
+from policy_composer.learning.trainer import Fit, train_model
 from policy_composer.selector.configuration import DynamicsConfig
 from policy_composer.selector.vae import VAE
 
@@ -137,30 +136,26 @@ def train_dynamics(latents: torch.Tensor, images: torch.Tensor, episode_index: t
                    trained_with: dict[str, str] | None = None) -> tuple[LatentDynamics, list[float]]:
     """Fit D_w on one controller's frames: latents (N, L) from the VAE, their uint8 images and episodes.
     `trained_with` names the VAE and the controller's model (see `weights_id`) in the checkpoint."""
-    t0 = time.perf_counter()
     if len(latents) < 2:
         raise ValueError(f"controller {config.controller!r} has {len(latents)} recorded frames; record its rollouts "
                          f"first (policy-composer record gear-controller-rollouts)")
-    torch.manual_seed(config.seed)
     src, dst = transition_pairs(episode_index, config.frame_skip)
-    model = LatentDynamics(config)
-    delta = latents[dst] - latents[src]
-    model.z_mean.copy_(latents.mean(0))
-    model.z_std.copy_(latents.std(0).clamp_min(1e-3))
-    model.delta_mean.copy_(delta.mean(0))
-    model.delta_std.copy_(delta.std(0).clamp_min(1e-3))
-    for p in vae.parameters():  # shared, not trained here
-        p.requires_grad_(False)
-    opt = adam(model, config)
-    gen = torch.Generator().manual_seed(config.seed)
-    losses = fit_epochs(model, opt, len(src), config.batch_size, config.epochs,
-                        lambda idx: model.loss(latents[src[idx]], latents[dst[idx]], vae,
-                                               images[dst[idx]].float() / 255.0),
-                        gen, f"training dynamics ({config.controller})", progress, digits=2)
-    if out is not None:
-        log = {"pairs": len(src), "losses": losses, "seconds": round(time.perf_counter() - t0, 1)}
-        save_checkpoint(model, config, out, log, trained_with)
-    return model, losses
+
+    def build(generator: torch.Generator) -> Fit:
+        model = LatentDynamics(config)
+        delta = latents[dst] - latents[src]
+        model.z_mean.copy_(latents.mean(0))
+        model.z_std.copy_(latents.std(0).clamp_min(1e-3))
+        model.delta_mean.copy_(delta.mean(0))
+        model.delta_std.copy_(delta.std(0).clamp_min(1e-3))
+        for p in vae.parameters():  # shared, not trained here
+            p.requires_grad_(False)
+        return Fit(model, len(src),
+                   lambda idx: model.loss(latents[src[idx]], latents[dst[idx]], vae, images[dst[idx]].float() / 255.0),
+                   log={"pairs": len(src)})
+
+    return train_model(config, build, f"training dynamics ({config.controller})", out, progress, digits=2,
+                       trained_with=trained_with)
 
 
 def load_dynamics(path: str | Path, latent_dim: int | None = None) -> LatentDynamics:

@@ -10,7 +10,6 @@ latent itself (an MLP): it skips the decoding and the CNN, which are nearly all 
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import numpy as np
@@ -19,9 +18,9 @@ from scipy.stats import spearmanr
 from torch import nn
 
 from policy_composer.data.frames import episode_bounds, random_shift, to_model_image
-from policy_composer.learning.checkpoint import load_checkpoint, save_checkpoint
+from policy_composer.learning.checkpoint import load_checkpoint
 from policy_composer.learning.layers import MixtureDensityHead, MixtureDensityMLP, image_encoder
-from policy_composer.learning.training import adam, fit_epochs
+from policy_composer.learning.trainer import Fit, train_model
 from policy_composer.selector.configuration import GoalScoreConfig, LatentGoalScoreConfig
 
 TRAIN_HINT = "policy-composer train goal-score"
@@ -84,21 +83,17 @@ def train_goal_score(images: torch.Tensor, progress: torch.Tensor, config: GoalS
                      trained_with: dict[str, str] | None = None) -> tuple[GoalScoreModel, list[float]]:
     """Fit G to uint8 images (N, 3, S, S) and their progress labels in [0, 1]; `trained_with` names the VAE whose
     reconstructions are among the images, if any."""
-    t0 = time.perf_counter()
-    if progress.min() < 0:
-        raise ValueError("progress labels must be in [0, 1]: train the goal score on successful demonstrations only")
-    torch.manual_seed(config.seed)
-    model = GoalScoreModel(config)
-    opt = adam(model, config)
-    gen = torch.Generator().manual_seed(config.seed)
-    losses = fit_epochs(model, opt, len(images), config.batch_size, config.epochs,
-                        lambda idx: model.loss(random_shift(images[idx].float() / 255.0, config.shift, gen),
-                                               progress[idx].float()),
-                        gen, f"training goal score ({config.camera})", progress_bar, postfix="nll")
-    if out is not None:
-        log = {"frames": len(images), "losses": losses, "seconds": round(time.perf_counter() - t0, 1)}
-        save_checkpoint(model, config, out, log, trained_with)
-    return model, losses
+    _check_progress(progress)
+
+    def build(generator: torch.Generator) -> Fit:
+        model = GoalScoreModel(config)
+        return Fit(model, len(images),
+                   lambda idx: model.loss(random_shift(images[idx].float() / 255.0, config.shift, generator),
+                                          progress[idx].float()),
+                   log={"frames": len(images)})
+
+    return train_model(config, build, f"training goal score ({config.camera})", out, progress_bar, postfix="nll",
+                       trained_with=trained_with)
 
 
 def train_latent_goal_score(mean: torch.Tensor, logvar: torch.Tensor, progress: torch.Tensor,
@@ -107,24 +102,25 @@ def train_latent_goal_score(mean: torch.Tensor, logvar: torch.Tensor, progress: 
     """Fit G to the VAE posteriors (mean, log-variance, (N, L) each) of demonstration frames. Each batch samples its
     latents from the posteriors, as the random shift augments the images: the predicted latents it will score are
     near, not at, the posterior means."""
-    t0 = time.perf_counter()
+    _check_progress(progress)
+    std = (0.5 * logvar).exp()
+
+    def build(generator: torch.Generator) -> Fit:
+        model = LatentGoalScoreModel(config)
+        model.z_mean.copy_(mean.mean(0))
+        model.z_std.copy_(mean.std(0).clamp_min(1e-3))
+        return Fit(model, len(mean),
+                   lambda idx: model.loss(mean[idx] + std[idx] * torch.randn(std[idx].shape, generator=generator),
+                                          progress[idx].float()),
+                   log={"frames": len(mean)})
+
+    return train_model(config, build, "training goal score (latent)", out, progress_bar, postfix="nll",
+                       trained_with=trained_with)
+
+
+def _check_progress(progress: torch.Tensor) -> None:
     if progress.min() < 0:
         raise ValueError("progress labels must be in [0, 1]: train the goal score on successful demonstrations only")
-    torch.manual_seed(config.seed)
-    model = LatentGoalScoreModel(config)
-    model.z_mean.copy_(mean.mean(0))
-    model.z_std.copy_(mean.std(0).clamp_min(1e-3))
-    opt = adam(model, config)
-    gen = torch.Generator().manual_seed(config.seed)
-    std = (0.5 * logvar).exp()
-    losses = fit_epochs(model, opt, len(mean), config.batch_size, config.epochs,
-                        lambda idx: model.loss(mean[idx] + std[idx] * torch.randn(std[idx].shape, generator=gen),
-                                               progress[idx].float()),
-                        gen, "training goal score (latent)", progress_bar, postfix="nll")
-    if out is not None:
-        log = {"frames": len(mean), "losses": losses, "seconds": round(time.perf_counter() - t0, 1)}
-        save_checkpoint(model, config, out, log, trained_with)
-    return model, losses
 
 
 def load_goal_score(path: str | Path) -> GoalScoreModel:

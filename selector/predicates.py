@@ -20,7 +20,7 @@ from policy_composer.data.features import image_key
 from policy_composer.data.frames import random_shift, to_model_image
 from policy_composer.learning.checkpoint import CheckpointError, check_out, finished, load_checkpoint, save_checkpoint
 from policy_composer.learning.layers import image_encoder
-from policy_composer.learning.training import adam, fit_epochs
+from policy_composer.learning.trainer import Fit, train_model
 from policy_composer.policies.senses import THRESHOLD, CachedSenses, Percept
 from policy_composer.selector.configuration import PredicateConfig
 from policy_composer.tasks.base import TaskDescription
@@ -86,19 +86,17 @@ def held_out(episode_index: torch.Tensor) -> torch.Tensor:
 def train_predicate(images: torch.Tensor, state: torch.Tensor, labels: torch.Tensor, config: PredicateConfig,
                     progress: bool = True) -> tuple[PredicateModel, list[float]]:
     """Fit one predicate's classifier to uint8 images (N, 3C, S, S), proprioception (N, P) and 0/1 labels (N,)."""
-    torch.manual_seed(config.seed)
-    model = PredicateModel(config)
-    model.state_mean.copy_(state.float().mean(0))
-    model.state_std.copy_(state.float().std(0).clamp_min(1e-3))
-    opt = adam(model, config)
-    gen = torch.Generator().manual_seed(config.seed)
     target = labels.float()
-    losses = fit_epochs(model, opt, len(images), config.batch_size, config.epochs,
-                        lambda idx: F.binary_cross_entropy_with_logits(
-                            model(random_shift(images[idx].float() / 255.0, config.shift, gen), state[idx].float()),
-                            target[idx]),
-                        gen, f"training predicate {config.predicate}", progress, postfix="bce")
-    return model, losses
+
+    def build(generator: torch.Generator) -> Fit:
+        model = PredicateModel(config)
+        model.state_mean.copy_(state.float().mean(0))
+        model.state_std.copy_(state.float().std(0).clamp_min(1e-3))
+        return Fit(model, len(images), lambda idx: F.binary_cross_entropy_with_logits(
+            model(random_shift(images[idx].float() / 255.0, config.shift, generator), state[idx].float()),
+            target[idx]))
+
+    return train_model(config, build, f"training predicate {config.predicate}", progress=progress, postfix="bce")
 
 
 def predicate_metrics(probability: torch.Tensor, labels: torch.Tensor) -> dict:

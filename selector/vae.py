@@ -8,17 +8,14 @@ from __future__ import annotations
 
 import copy
 import hashlib
-import time
-from dataclasses import asdict
 from pathlib import Path
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from policy_composer.learning.checkpoint import load_checkpoint, save_checkpoint
-from policy_composer.learning.snapshot import Snapshots
-from policy_composer.learning.training import adam, fit_epochs
+from policy_composer.learning.checkpoint import load_checkpoint
+from policy_composer.learning.trainer import Fit, train_model
 from policy_composer.selector.configuration import VAEConfig
 
 TRAIN_HINT = "policy-composer train world-model"
@@ -93,20 +90,13 @@ def _digest(images: torch.Tensor) -> str:
 def train_vae(images: torch.Tensor, config: VAEConfig, out: str | Path | None = None,
               progress: bool = True) -> tuple[VAE, list[float]]:
     """Fit the VAE to uint8 images (N, 3, S, S); returns it and the per-epoch mean loss."""
-    t0 = time.perf_counter()
-    torch.manual_seed(config.seed)
-    model = VAE(config)
-    opt = adam(model, config)
-    gen = torch.Generator().manual_seed(config.seed)
-    snapshots = None if out is None else Snapshots.beside(out, config=asdict(config), images=_digest(images))
-    losses = fit_epochs(model, opt, len(images), config.batch_size, config.epochs,
-                        lambda idx: model.loss(images[idx].float() / 255.0)[0], gen,
-                        f"training VAE ({config.camera})", progress, digits=1, snapshots=snapshots)
-    if out is not None:
-        log = {"frames": len(images), "losses": losses, "seconds": round(time.perf_counter() - t0, 1)}
-        save_checkpoint(model, config, out, log)
-        snapshots.done()
-    return model, losses
+
+    def build(generator: torch.Generator) -> Fit:
+        model = VAE(config)
+        return Fit(model, len(images), lambda idx: model.loss(images[idx].float() / 255.0)[0],
+                   log={"frames": len(images)}, snapshot={"images": _digest(images)})
+
+    return train_model(config, build, f"training VAE ({config.camera})", out, progress, digits=1)
 
 
 def load_vae(path: str | Path) -> VAE:

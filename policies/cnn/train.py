@@ -8,10 +8,8 @@ statistics with the config as JSON beside it; the library's CNN model is a folde
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 from contextlib import nullcontext
-from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -27,8 +25,7 @@ from policy_composer.learning.checkpoint import (
     model_writer,
     save_checkpoint,
 )
-from policy_composer.learning.snapshot import Snapshots
-from policy_composer.learning.training import adam, fit_epochs
+from policy_composer.learning.trainer import Fit, train_model
 from policy_composer.policies.cnn.configuration_cnn import PROPRIOCEPTION, SUBTASKS, CNNPolicyConfig
 from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
 from policy_composer.tasks.panda import PandaForwardKinematics
@@ -113,37 +110,32 @@ def train_cnn_policy(root: str | Path | Sequence[str | Path], config: CNNPolicyC
 
 
 def _train(root, config: CNNPolicyConfig, out, progress: bool, data) -> tuple[CNNPolicy, list[float]]:
-    t0 = time.perf_counter()
-    torch.manual_seed(config.seed)
-    data = data if data is not None else load_demonstrations(root, config, progress=progress)
-    model = CNNPolicy(config)
-    quantities = {"state": data["state"], "action": data["action"][:, :-1], "offset": data.get("offset")}
-    for name in model.normalised:
-        x = quantities[name].float()
-        getattr(model, f"{name}_mean").copy_(x.mean(0))
-        getattr(model, f"{name}_std").copy_(x.std(0).clamp_min(1e-5))
-    opt = adam(model, config)
+    roots = [str(root)] if isinstance(root, (str, Path)) else [str(r) for r in root]
+
+    def build(generator: torch.Generator) -> Fit:
+        # read here, once torch is seeded: the loader draws from torch's generator
+        frames = data if data is not None else load_demonstrations(root, config, progress=progress)
+        model = CNNPolicy(config)
+        quantities = {"state": frames["state"], "action": frames["action"][:, :-1], "offset": frames.get("offset")}
+        for name in model.normalised:
+            x = quantities[name].float()
+            getattr(model, f"{name}_mean").copy_(x.mean(0))
+            getattr(model, f"{name}_std").copy_(x.std(0).clamp_min(1e-5))
+
+        def batch_loss(idx: torch.Tensor) -> torch.Tensor:
+            images = random_shift(frames["image"][idx].float() / 255.0, config.shift, generator)
+            offset = frames["offset"][idx] if config.offset_weight else None
+            return model.loss(images, frames["state"][idx], frames["action"][idx], offset)
+
+        n = len(frames["image"])
+        return Fit(model, n, batch_loss, log={"dataset": roots[0] if len(roots) == 1 else roots, "frames": n},
+                   snapshot={"datasets": roots, "frames": n})
+
     # Cosine decay to zero: a mixture density network's loss spikes now and then, and the last epoch's
     # weights are the ones kept, so end on small steps.
-    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=config.epochs)
-    n = len(data["image"])
-    gen = torch.Generator().manual_seed(config.seed)
-
-    def batch_loss(idx: torch.Tensor) -> torch.Tensor:
-        images = random_shift(data["image"][idx].float() / 255.0, config.shift, gen)
-        offset = data["offset"][idx] if config.offset_weight else None
-        return model.loss(images, data["state"][idx], data["action"][idx], offset)
-
-    roots = [str(root)] if isinstance(root, (str, Path)) else [str(r) for r in root]
-    snapshots = None if out is None else Snapshots.beside(out, config=asdict(config), datasets=roots, frames=n)
-    losses = fit_epochs(model, opt, n, config.batch_size, config.epochs, batch_loss, gen, "training cnn policy",
-                        progress, schedule=schedule, postfix="nll", snapshots=snapshots)
-    if out is not None:
-        log = {"dataset": roots[0] if len(roots) == 1 else roots, "frames": n, "losses": losses,
-               "seconds": round(time.perf_counter() - t0, 1)}
-        save_cnn_policy(model, out, log)
-        snapshots.done()
-    return model, losses
+    return train_model(config, build, "training cnn policy", out, progress,
+                       schedule=lambda opt: torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=config.epochs),
+                       postfix="nll")
 
 
 def save_cnn_policy(model: CNNPolicy, out: str | Path, log: dict | None = None) -> None:
