@@ -18,6 +18,7 @@ from test_writers import holder, one_line_error, small_disk
 
 from policy_composer.app.record import first_seed_of
 from policy_composer.data.features import read_sidecar
+from policy_composer.learning import checkpoint
 from policy_composer.learning.checkpoint import CheckpointError, save_checkpoint, weights_id
 from policy_composer.learning.training import TrainingDiverged
 from policy_composer.policies.cnn import train
@@ -200,7 +201,7 @@ def test_a_save_that_runs_out_of_room_is_one_line(insertion_demos, tmp_path, mon
         raise safetensors.SafetensorError("Error while serializing: I/O error: No space left on device (os error 28)")
 
     out = _cnn_checkpoint(tmp_path / "cnn")
-    monkeypatch.setattr(safetensors.torch, "save_file", full)
+    monkeypatch.setattr(checkpoint, "save_file", full)
     _train_onto_a_full_disk(insertion_demos, out)
 
 

@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 from conftest import run_cli
 
+from policy_composer.app import demo
 from policy_composer.app.demo import _train_cnn
 from policy_composer.app.pipeline import MARKER, Stage, StageRecord, run_stages
 from policy_composer.app.profiles import PROFILES
@@ -144,7 +145,7 @@ def test_an_interrupted_cnn_training_stage_keeps_the_policies_it_finished(insert
         return real(root, config, **kwargs)
 
     out = tmp_path / "bc-cnn"
-    monkeypatch.setattr(train, "train_cnn_policy", interrupted_at_the_insertion)
+    monkeypatch.setattr(demo, "train_cnn_policy", interrupted_at_the_insertion)
     with pytest.raises(KeyboardInterrupt):
         _train_cnn(out, inputs, configs, get_spec("gear-assembly"))
     move = weights_id(out / "cnn" / "move")
@@ -154,7 +155,7 @@ def test_an_interrupted_cnn_training_stage_keeps_the_policies_it_finished(insert
         trained.append(config.subtask)
         return real(root, config, **kwargs)
 
-    monkeypatch.setattr(train, "train_cnn_policy", counted)
+    monkeypatch.setattr(demo, "train_cnn_policy", counted)
     facts = _train_cnn(out, inputs, configs, get_spec("gear-assembly"))
     assert trained == ["move", "insert"], "the move policy, finished before the interruption, was trained again"
     assert weights_id(out / "cnn" / "move") == move and (out / "cnn" / "insert" / "model.safetensors").exists()
