@@ -4,11 +4,14 @@ termination is sensed (`LearnedController`; the CNN and LeRobot kinds)."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from policy_composer.policies.arm import STEP_SPEED_MARGIN, ArmController, ScriptedController, Segment
 from policy_composer.policies.mp.planning import VELOCITY_LIMIT, SceneCollisionModel
-from policy_composer.tasks.base import Percept, Subtask, Waypoint, np0
+from policy_composer.tasks.base import Percept, PlanningError, Subtask, Waypoint, np0
+from policy_composer.tasks.panda import line_to
 
 CONFIRM_STEPS = 3  # a learned controller stops once its subtask has been sensed done this many steps in a row
 # A probing descent is blocked when, over the last STALL_STEPS control steps, the TCP (joint positions and forward
@@ -30,11 +33,15 @@ class SubtaskController(ScriptedController):
         self.fixed_grasp_offset = grasp_offset  # set: every pick is off by exactly this much (tests, tables)
         self.grasp_offset = 0.0
         self.tries = 0  # how many offsets the last activation tried (Subtask.search)
+        self.trimmed = None  # the hand's steady error the last activation corrected (Waypoint.trim; m, world)
+        self.replan_failed = ""  # why a re-plan on the way (a retry, a trim) found no way on
 
     def can_start(self, obs) -> bool:
         return self.subtask.can_start(self.senses(obs))
 
     def succeeded(self, percept: Percept) -> tuple[bool, str]:
+        if self.replan_failed:
+            return False, f"no way on from where the hand was: {self.replan_failed}"
         return self.subtask.succeeded(percept)
 
     def q9(self, obs) -> np.ndarray:
@@ -49,7 +56,7 @@ class SubtaskController(ScriptedController):
             rng = np.random.default_rng(seed)
             offset = rng.uniform(-self.max_grasp_offset, self.max_grasp_offset)
             self.grasp_offset = float(offset if self.fixed_grasp_offset is None else self.fixed_grasp_offset)
-        self.tries = 1
+        self.tries, self.trimmed, self.replan_failed = 1, None, ""
         return self._connect(obs, self.subtask.waypoints(self.ik, self.scene, self.q9(obs), self.grasp_offset,
                                                          self.senses(obs)), seed)
 
@@ -59,20 +66,52 @@ class SubtaskController(ScriptedController):
         segments = self.connect(obs, waypoints, seed)
         self._probe_z = {k: self.ik.tcp_positions(s.q)[:, 2]
                          for k, (s, wp) in enumerate(zip(segments, waypoints)) if wp.probe}
+        self._trims = {id(s): i for i, (s, wp) in enumerate(zip(segments, waypoints)) if wp.trim}
         return segments
 
+    def _trim_due(self) -> int | None:
+        """The index of the trimmed waypoint whose segment has just settled (None: none has)."""
+        if self._k >= len(self.segments):
+            return None
+        seg = self.segments[self._k]
+        return self._trims.get(id(seg)) if self._t == len(seg.q) + seg.settle else None
+
+    def _trim(self, obs, i: int) -> None:
+        """Measure where the hand settled at waypoint `i` (its joints, forward kinematics) and re-plan from there: the
+        line-up again and every line after it, shifted by the hand's steady error (Waypoint.trim)."""
+        wp = self.waypoints[i]
+        self.trimmed = wp.tcp - self.scene.tcp()
+        q, again = self.q9(obs), []
+        for w in (replace(wp, trim=False), *self.waypoints[i + 1:]):
+            if w.kind == "line":
+                w = line_to(self.ik, q, w.tcp + self.trimmed, w.quat, w.gripper, w.step, w.settle)
+            again.append(w)
+            q = w.q
+        self.segments = self._connect(obs, again, None)
+        self._k, self._t = 0, 0
+
     def next_command(self, obs):
-        if self.guesses and self.blocked(obs):  # back up and line up for the next guess
-            self.grasp_offset, self.tries = self.guesses.pop(0), self.tries + 1
-            self.segments = self._connect(obs, self.subtask.retry(self.ik, self.scene, self.q9(obs),
-                                                                  self.grasp_offset, self.senses(obs)), None)
-            self._k, self._t = 0, 0
+        try:
+            if self.guesses and self.blocked(obs):  # back up and line up for the next guess
+                self.grasp_offset, self.tries = self.guesses.pop(0), self.tries + 1
+                self.segments = self._connect(obs, self.subtask.retry(self.ik, self.scene, self.q9(obs),
+                                                                      self.grasp_offset, self.senses(obs)), None)
+                self._k, self._t = 0, 0
+            elif (i := self._trim_due()) is not None:
+                self._trim(obs, i)
+        except PlanningError as e:
+            self.replan_failed = str(e)
+            return None
         return super().next_command(obs)
 
     def remark(self):
-        if self.tries < 2:
-            return ""
-        return f"felt for the hole: {self.tries} guesses, the last {1000 * self.grasp_offset:+.0f} mm along the fingers"
+        remarks = []
+        if self.trimmed is not None:
+            remarks.append(f"trimmed the hand's steady error, {1000 * np.linalg.norm(self.trimmed):.1f} mm")
+        if self.tries >= 2:
+            remarks.append(f"felt for the hole: {self.tries} guesses, the last {1000 * self.grasp_offset:+.0f} mm "
+                           "along the fingers")
+        return "; ".join(remarks)
 
     def blocked(self, obs) -> bool:
         """Whether, on a probing segment, the TCP went down less than a third of what it was commanded to over the

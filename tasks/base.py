@@ -66,6 +66,9 @@ class Waypoint:
     step: float = 0.004  # TCP travel per control step on a line (m)
     settle: int = 4  # control steps holding the goal afterwards
     probe: bool = False  # a way that contact may block (a part on another's top): the controller feels for it
+    # A line-up that must be exact: once settled there, the controller measures the hand (its joints) and shifts the
+    # lines after it by the steady error (a held part's weight sags the arm below its targets).
+    trim: bool = False
 
 
 class Scene(Protocol):

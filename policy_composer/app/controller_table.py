@@ -28,7 +28,7 @@ from policy_composer.policies.library import build_library, cameras_needed, name
 from policy_composer.policies.registry import kind_of_source
 from policy_composer.policies.senses import OracleSenses
 from policy_composer.selector.predicates import LearnedSenses, load_predicates
-from policy_composer.tasks.base import TaskDescription
+from policy_composer.tasks.base import PlanningError, TaskDescription
 from policy_composer.tasks.registry import DEFAULT_TASK, task_of
 
 SUBTASK_COLUMNS = ("pick", "move", "insert", "full")
@@ -77,6 +77,9 @@ def run_trial(env, controllers: dict[str, object], column: str, seed: int) -> Tr
             obs = run_activation(env, c, obs, seed)
         except InitiationError as e:
             outcome, why = Outcome.FAILED, str(e)
+            break
+        except PlanningError as e:
+            outcome, why = Outcome.FAILED, f"{c.name}: no plan: {e}"
             break
         outcome, why = c.outcome, c.reason
         truly, not_so = c.subtask.succeeded(truth(obs))

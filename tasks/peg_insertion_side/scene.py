@@ -105,6 +105,11 @@ class PegScene:
         turn = [0.0, 1.0, 0.0, 0.0] if sign > 0 else [0.0, 0.0, 1.0, 0.0]
         return sapien.Pose([sign * grasp_offset(self.half_length), 0.0, 0.0], turn)
 
+    def held_head_x(self) -> float:
+        """The peg's head along the hole's axis from its centre plane (m), where the planned grasp puts it in the hand."""
+        peg = pose0(self.env.agent.tcp.pose) * self.peg_in_hand()
+        return float((self.hole().inv() * peg * sapien.Pose([self.half_length, 0.0, 0.0])).p[0])
+
     def held_part(self, widen: float, lengthen: float) -> tuple[float, float, pin.SE3]:
         """The peg, as the planned grasp holds it, as a cylinder around its square section along its axis."""
         along_x = pin.SE3(pin.utils.rotate("y", np.pi / 2), np.zeros(3))  # the cylinder's axis (z) onto the peg's x

@@ -7,14 +7,14 @@ import time
 from dataclasses import replace
 
 from policy_composer.app.arguments import add_config_options, at_least, config_from, names
-from policy_composer.app.cli.options import WORLD, dataset_path, env_options, make_env, training_threads
+from policy_composer.app.cli.options import WORLD, dataset_path, env_options, training_threads
 from policy_composer.data.atomic import check_replaceable
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 from policy_composer.policies.dmp.configuration_dmp import FIT_EPISODES, FIT_FIRST_SEED
 from policy_composer.policies.sources import MODELS
 from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, PredicateConfig, VAEConfig
 from policy_composer.tasks.gear_assembly.spec import CAMERA_NAMES
-from policy_composer.tasks.registry import get_spec
+from policy_composer.tasks.registry import get_spec, get_task
 
 
 def cmd_train_policy(args: argparse.Namespace) -> int:
@@ -39,7 +39,8 @@ def cmd_train_dmp(args: argparse.Namespace) -> int:
 
     with model_writer(args.out):
         check_replaceable(args.out, DMP_FILES, "a DMP library")
-        env = make_env("state_dict", args)
+        task = get_task(args.task)
+        env = task.make_env("state_dict", task.settings(args.resolution, clearance_mm=args.clearance))
         t0 = time.time()
         library = fit_dmp_library(env, seeds=list(range(args.seed, args.seed + args.episodes)))
         library.save(args.out)
@@ -101,7 +102,7 @@ def add_commands(sub) -> None:
                            "library's CNN model looks)")
     tr_policy.set_defaults(func=cmd_train_policy)
     tr_dmp = tr_sub.add_parser("dmp", help="fit the DMPs to the motion planner's trajectories")
-    env_options(tr_dmp, grasp=False)
+    env_options(tr_dmp, grasp=False, task=True)
     tr_dmp.add_argument("--episodes", type=at_least(1), default=FIT_EPISODES, help="planner episodes to fit to")
     tr_dmp.set_defaults(seed=FIT_FIRST_SEED)
     tr_dmp.add_argument("--out", default=str(MODELS / "dmp"))
