@@ -106,7 +106,7 @@ class PegScene:
         return sapien.Pose([sign * grasp_offset(self.half_length), 0.0, 0.0], turn)
 
     def held_head_x(self) -> float:
-        """The peg's head along the hole's axis from its centre plane (m), where the planned grasp puts it in the hand."""
+        """The peg's head along the hole's axis from its centre plane (m), where the planned grasp puts it."""
         peg = pose0(self.env.agent.tcp.pose) * self.peg_in_hand()
         return float((self.hole().inv() * peg * sapien.Pose([self.half_length, 0.0, 0.0])).p[0])
 
