@@ -171,6 +171,8 @@ class TaskSpec:
     full_task_demos: str
     controller_rollouts: str
     corrections: Mapping[str, str] = field(default_factory=dict)
+    # The most DAgger rounds the main job runs on this task (None: as many as its profile says).
+    dagger_rounds: int | None = None
     episode_steps: int | None = None  # control steps a composed episode may take (None: the main job's profile says)
     fixed_cameras: tuple[str, ...] = ()  # the cameras not on the arm (the paper compares them with those on it)
     insertion_windows: Mapping[str, tuple[float, float, float]] = field(default_factory=dict)

@@ -208,12 +208,15 @@ def run_demo(profile: str = "quick", out: str | Path = "results", workers: int =
     """Run (or reuse) every stage of `task`'s job under `out`/pipeline, then write `out`/report.md and report.html."""
     if profile not in PROFILES:
         raise ValueError(f"unknown profile {profile!r}: choose one of {', '.join(PROFILES)}")
+    spec = get_spec(task)
     p = PROFILES[profile]
+    if spec.dagger_rounds is not None:
+        p = replace(p, dagger_rounds=min(p.dagger_rounds, spec.dagger_rounds))
     out = Path(out)
     t0 = time.perf_counter()
     with one_writer(out):  # a second main job into the same folder stops at once
         records = run_stages(stages(p, workers, task), out / "pipeline")
-        report = write_report(out, p, records, time.perf_counter() - t0, get_spec(task))
+        report = write_report(out, p, records, time.perf_counter() - t0, spec)
     return records, report
 
 
