@@ -3,6 +3,7 @@ strict success refusing a peg pushed past the box (ManiSkill issue 1391)."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 from conftest import run_cli
@@ -10,10 +11,13 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from mani_skill.utils.structs.pose import Pose
 
 from policy_composer.data.features import read_info, read_sidecar
+from policy_composer.policies import subtasks
 from policy_composer.policies.arm import Outcome, run_activation
 from policy_composer.policies.library import LibrarySources, build_library
+from policy_composer.tasks.base import PlanningError
 from policy_composer.tasks.peg_insertion_side.env import CAMERA_NAMES, PREDICATES, make_env, predicates, strict_success
 from policy_composer.tasks.peg_insertion_side.spec import STATE_NAMES
+from policy_composer.tasks.peg_insertion_side.task import labels
 
 
 @pytest.fixture(scope="module")
@@ -91,6 +95,29 @@ def test_the_librarys_controller_kinds_run_the_peg_task_from_its_description(peg
     assert not library["mp_pick"].can_start(obs) and library["mp_insert"].can_start(obs)
     run_activation(env, library["mp_insert"], obs, seed)
     assert (library["mp_insert"].outcome is Outcome.DONE) == bool(strict_success(env)[0])
+
+
+def test_the_planned_insertion_lines_the_peg_up_from_its_grasp_and_trims_the_arms_sag(peg_library, monkeypatch):
+    """From the pre-insertion start, where the carry left the peg's head more than the 3 mm clearance off the hole's
+    axis, the planned insertion lines the peg up as its grasp model says, measures from the arm's joints how far the
+    held peg's weight sags the hand below its target, corrects it, and seats the peg; a correction it finds no plan
+    for fails the activation with the reason instead of raising."""
+    env, library = peg_library
+    insert = library["mp_insert"]
+    obs, _ = env.reset(seed=3000, options={"start": "pre_insertion"})
+    head = labels(env)[1]
+    assert max(abs(head[1]), abs(head[2])) > 0.003  # off the axis by more than the clearance
+    run_activation(env, insert, obs, 3000)
+    assert insert.outcome is Outcome.DONE and bool(strict_success(env)[0]), insert.reason
+    assert 0.0005 < np.linalg.norm(insert.trimmed) < 0.005 and "trimmed the hand's steady error" in insert.reason
+
+    def no_plan(*args, **kwargs):
+        raise PlanningError("no IK solution for the TCP")
+
+    obs, _ = env.reset(seed=3000, options={"start": "pre_insertion"})
+    monkeypatch.setattr(subtasks, "line_to", no_plan)  # the trim's re-plan
+    run_activation(env, insert, obs, 3000)
+    assert insert.outcome is Outcome.FAILED and "no way on from where the hand was" in insert.reason
 
 
 def test_the_recorder_records_the_peg_tasks_expert_from_both_cameras(tmp_path):
