@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 from pathlib import Path
 
 from policy_composer.app.arguments import add_config_options, at_least, config_from
@@ -17,13 +18,16 @@ from policy_composer.app.cli.options import (
     workers_option,
 )
 from policy_composer.selector.configuration import GOAL_SCORES, ComposeConfig
+from policy_composer.tasks.registry import get_spec
 
 
 def cmd_compose(args: argparse.Namespace) -> int:
     """The selector composes the whole library in GearAssembly-v1 rollouts (paper Table I, composed row)."""
     from policy_composer.app.composition import compose_library
 
-    episodes = compose_library(args.models, library_sources(args), config_from(args, ComposeConfig),
+    config = config_from(args, ComposeConfig)
+    config = replace(config, max_steps=args.max_steps or get_spec(args.task).episode_steps or config.max_steps)
+    episodes = compose_library(args.models, library_sources(args), config,
                                list(range(args.seed, args.seed + args.episodes)),
                                Path(args.out), videos=args.videos, resolution=args.resolution,
                                clearance_mm=args.clearance, knock_out_step=args.knock_out_step, resume=args.resume,
@@ -57,6 +61,9 @@ def add_commands(sub) -> None:
     add_config_options(compose, ComposeConfig, {"horizon": "horizon", "samples": "samples",
                                                 "reselect_every": "reselect-every", "max_failures": "max-failures",
                                                 "episode_failures": "episode-failures", "senses": "senses"})
+    compose.add_argument("--max-steps", type=at_least(1), default=None,
+                         help="control steps an episode may take (default: the task's episode limit, "
+                              f"{ComposeConfig.max_steps} where it has none)")
     compose.add_argument("--knock-out-step", type=at_least(0), default=None,
                          help="perturbation: knock the gear out of the gripper at this control step "
                               "(or when next lifted)")
