@@ -1,18 +1,21 @@
 """`policy-composer demo`: the paper reproduced end to end, as stages of the pipeline runner.
 
-record the demo sets -> fit the DMPs, train the CNN policy -> record the controllers' rollouts -> train the VAE,
-the dynamics models, the goal scorers and the predicate classifiers -> evaluate the goal scores and the controllers
-(Table I) -> compose the library with the selector, on the oracle's predicates and on the sensed ones (and recover
-from a knock-out) -> the random-walk MDP experiments -> the report.
+record the demo sets -> fit the DMPs, train the CNN policies (and their DAgger rounds) -> record the controllers'
+rollouts -> train the VAE, the dynamics models, the goal scorers and the predicate classifiers -> evaluate the goal
+scores and the controllers (Table I) -> compose the library with the selector, on the oracle's predicates and on the
+sensed ones -> the report. The gear's job adds the paper's straight-down insertions (their rollouts, dynamics
+models, Table I and compositions), the recovery from a knock-out and the random-walk MDP experiments.
 
-A profile (`profiles`) says how big each stage is.
+A profile (`profiles`) says how big each stage is; `Makings` holds what the stages are made with at its sizes, and
+`stages` lists them, each a named run function with its settings bound.
 """
 
 from __future__ import annotations
 
 import shutil
 import time
-from dataclasses import asdict, replace
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, replace
 from functools import partial
 from pathlib import Path
 
@@ -29,7 +32,7 @@ from policy_composer.data import interrupt
 from policy_composer.data.catalog import summarize
 from policy_composer.data.features import FEATURES_REVISION
 from policy_composer.data.lock import one_writer
-from policy_composer.data.recipes import load_recipe
+from policy_composer.data.recipes import Recipe, load_recipe
 from policy_composer.data.verify import verify_dataset
 from policy_composer.learning.checkpoint import finished
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
@@ -71,136 +74,171 @@ def env_key(task: str, resolution: int) -> dict:
     return {"resolution": resolution, "clearance_mm": 2.0, "task_revision": TASK_REVISION}
 
 
+@dataclass(frozen=True)
+class Makings:
+    """What the main job's stages are made with, for a task at a profile's sizes: the recipes they record, the
+    configurations they train and compose with, and what of the env and of the library their keys name."""
+
+    spec: TaskSpec
+    demos: tuple[tuple[Recipe, int, str], ...]  # the CNN policies' demonstrations: recipe, episodes, what they show
+    full_task: Recipe  # the full-task demonstrations (the goal scorers')
+    rollouts: Recipe  # each controller's rollouts (the dynamics models')
+    straight_rollouts: Recipe  # the straight-down insertions' rollouts (the gear's)
+    cnn: dict[str, CNNPolicyConfig]  # subtask -> its CNN policy's training
+    dagger: dict[str, tuple[Recipe, CNNPolicyConfig]]  # subtask -> its corrections' recipe, its DAgger trainings
+    vae: VAEConfig
+    dynamics: DynamicsConfig
+    goal: GoalScoreConfig
+    predicates: PredicateConfig
+    compose: ComposeConfig  # on the oracle's predicates
+    sensed: ComposeConfig  # on the predicate classifiers
+    insertion: str  # the planned insertions' default ("feel" on the gear)
+    table_kinds: tuple[str, ...]  # Table I's rows
+    env: dict  # in the key of each stage that runs the env (`env_key`)
+    # In the keys of the stages that run the controllers (the DMPs' too: they learn the planner's trajectories): a
+    # changed or added controller re-runs them.
+    library: dict
+
+    @classmethod
+    def of(cls, p: Profile, task: str) -> Makings:
+        spec = get_spec(task)
+        insertion = spec.demonstrations["insert"][0]  # its recipe comes first
+        demos = tuple((load_recipe(name), p.insertion_demos, "the insertion demonstrations") if name == insertion
+                      else (load_recipe(name), p.transport_demos, "the pick-up and carry demonstrations")
+                      for name in dict.fromkeys((insertion, *(r for r, _ in spec.demonstrations.values()))))
+        rollouts = load_recipe(spec.controller_rollouts)
+        cnn = {s: CNNPolicyConfig(subtask=s, task=task, epochs=(s == "insert" and p.insert_epochs) or p.cnn_epochs,
+                                  num_mixtures=p.mixtures, image_size=p.image_size, max_steps=p.cnn_max_steps,
+                                  precision="bfloat16" if s in p.bfloat16_subtasks else "float32")
+               for s in ("pick", "move", "insert") if s in spec.demonstrations}
+        compose = ComposeConfig(horizon=p.horizon, samples=p.samples,
+                                max_steps=min(p.compose_max_steps, spec.episode_steps or p.compose_max_steps))
+        return cls(
+            spec=spec, demos=demos,
+            full_task=replace(load_recipe(spec.full_task_demos), train_episodes=p.train_demos),
+            rollouts=rollouts, straight_rollouts=replace(rollouts, controllers=STRAIGHT),
+            cnn=cnn, dagger={s: (load_recipe(spec.corrections[s]), replace(cnn[s], epochs=p.dagger_epochs))
+                             for s in p.dagger_subtasks if s in spec.corrections},
+            vae=VAEConfig(task=task, epochs=p.vae_epochs, image_size=p.image_size),
+            dynamics=DynamicsConfig(task=task, epochs=p.dynamics_epochs),
+            goal=GoalScoreConfig(task=task, epochs=p.goal_epochs, num_mixtures=p.mixtures, image_size=p.image_size),
+            predicates=PredicateConfig(task=task, epochs=p.predicate_epochs,
+                                       image_size=min(PredicateConfig.image_size, p.image_size)),
+            compose=compose, sensed=replace(compose, senses="learned"),
+            insertion=next(iter(get_task(task).insertions)), table_kinds=tuple(k.label for k in kinds().values()),
+            env=env_key(task, p.resolution),
+            library={"library_revision": LIBRARY_REVISION, "controllers": all_names(LibrarySources(task=task))})
+
+    def recording(self, recipe: Recipe, episodes: int) -> dict:
+        """The key of a stage that records `episodes` of `recipe`."""
+        return {"recipe": asdict(recipe), "episodes": episodes, "features_revision": FEATURES_REVISION, **self.env}
+
+
 def stages(p: Profile, workers: int = 1, task: str = DEFAULT_TASK) -> list[Stage]:
     """The main job's stages for `task` at the sizes of profile `p`; the episode loops run on `workers` processes
     (not in a stage's key: the results are the same for any number). The gear's job adds the paper's straight-down
     insertions, the knock-out and the random-walk MDP."""
-    spec, description = get_spec(task), get_task(task)
+    m = Makings.of(p, task)
     gear = task == DEFAULT_TASK
-    insertion_recipe = spec.demonstrations["insert"][0]
-    demo_recipes = {name: load_recipe(name)
-                    for name in dict.fromkeys((insertion_recipe, *(r for r, _ in spec.demonstrations.values())))}
-    full_task = replace(load_recipe(spec.full_task_demos), train_episodes=p.train_demos)
-    rollouts = load_recipe(spec.controller_rollouts)
-    straight_rollouts = replace(rollouts, controllers=STRAIGHT)
-    cnn = {s: CNNPolicyConfig(subtask=s, task=task, epochs=(s == "insert" and p.insert_epochs) or p.cnn_epochs,
-                              num_mixtures=p.mixtures, image_size=p.image_size, max_steps=p.cnn_max_steps,
-                              precision="bfloat16" if s in p.bfloat16_subtasks else "float32")
-           for s in ("pick", "move", "insert") if s in spec.demonstrations}
-    dagger = {s: (load_recipe(spec.corrections[s]), replace(cnn[s], epochs=p.dagger_epochs))
-              for s in p.dagger_subtasks if s in spec.corrections}
-    vae = VAEConfig(task=task, epochs=p.vae_epochs, image_size=p.image_size)
-    dynamics = DynamicsConfig(task=task, epochs=p.dynamics_epochs)
-    goal = GoalScoreConfig(task=task, epochs=p.goal_epochs, num_mixtures=p.mixtures, image_size=p.image_size)
-    predicates = PredicateConfig(task=task, epochs=p.predicate_epochs,
-                                 image_size=min(PredicateConfig.image_size, p.image_size))
-    compose = ComposeConfig(horizon=p.horizon, samples=p.samples,
-                            max_steps=min(p.compose_max_steps, spec.episode_steps or p.compose_max_steps))
-    sensed = replace(compose, senses="learned")
-    env = env_key(task, p.resolution)
-    # In the keys of the stages that run the controllers (the DMPs' too: they learn the planner's trajectories): a
-    # changed or added controller re-runs them.
-    library = {"library_revision": LIBRARY_REVISION, "controllers": all_names(LibrarySources(task=task))}
-    table_kinds = tuple(k.label for k in kinds().values())
-    inserts = f", {p.insert_trials} per insertion" if p.insert_trials else ""
-    default = next(iter(description.insertions))  # the planned insertions' default ("feel" on the gear)
-    cameras = spec.cameras
-
-    def record(recipe, episodes):
-        return {"recipe": asdict(recipe), "episodes": episodes, "features_revision": FEATURES_REVISION, **env}
-
-    def record_stage(recipe, episodes: int, what: str) -> Stage:
-        return Stage(stage_name(recipe.name), f"record {what} ({episodes})", record(recipe, episodes),
-                     lambda out, _: _record(recipe, out, episodes, p.resolution, workers), resumable=True,
-                     verify=_verify_dataset)
-
-    dagger_stages = _dagger_rounds(p, spec, {s: (r, c, record(r, p.dagger_episodes)) for s, (r, c) in dagger.items()},
-                                   workers)
+    runs = {"resolution": p.resolution, "workers": workers}  # the env's resolution, the episode loops' processes
+    ran = {**m.env, **m.library}  # in the key of each stage that runs the library's controllers
+    demos = tuple(stage_name(recipe.name) for recipe, _, _ in m.demos)
+    dagger = _dagger_rounds(p, m, workers)
     # What the predicate classifiers learn from: every recording of the library's and the expert's episodes that
     # reaches the part's counterpart (the gear's pick-up and carry demonstrations add nothing there).
-    labelled = ("controller-rollouts", "full-task-demos", stage_name(insertion_recipe),
-                *(s.name for s in dagger_stages if s.verify is _verify_dataset))
-    demo_stages = [stage_name(r) for r in demo_recipes]
-
-    def compose_stage(name, what, config, insertion, world):
-        return Stage(name, f"{what} (episodes: {p.compose_episodes})",
-                     {"compose": asdict(config), "episodes": p.compose_episodes, **env, **library},
-                     lambda out, i: _compose(out, i, config, list(range(p.compose_episodes)), p.resolution, None,
-                                             workers, task, insertion, world),
-                     inputs=("dmp", "cnn", world), resumable=True)
-
-    jobs = [
-        *(record_stage(r, p.insertion_demos if name == insertion_recipe else p.transport_demos,
-                       "the insertion demonstrations" if name == insertion_recipe
-                       else "the pick-up and carry demonstrations") for name, r in demo_recipes.items()),
-        Stage("full-task-demos", f"record the full-task demonstrations ({p.full_task_demos}, of which "
-              f"{p.train_demos} train the goal scorers)", record(full_task, p.full_task_demos),
-              lambda out, _: _record(full_task, out, p.full_task_demos, p.resolution, workers), resumable=True,
-              verify=_verify_dataset),
+    labelled = ("controller-rollouts", "full-task-demos", stage_name(m.spec.demonstrations["insert"][0]),
+                *(s.name for s in dagger if s.verify is _verify_dataset))
+    trials = f"{p.table_trials} per cell" + (f", {p.insert_trials} per insertion" if p.insert_trials else "")
+    compose = partial(_composition, p=p, task=task, workers=workers, key=ran)
+    return [
+        # The recordings the library learns from; its DMPs and CNN policies.
+        *(_recording(stage_name(recipe.name), f"record {what} ({episodes})", m.recording(recipe, episodes),
+                     partial(_record_stage, recipe=recipe, episodes=episodes, **runs))
+          for recipe, episodes, what in m.demos),
+        _recording("full-task-demos", f"record the full-task demonstrations ({p.full_task_demos}, of which "
+                   f"{p.train_demos} train the goal scorers)", m.recording(m.full_task, p.full_task_demos),
+                   partial(_record_stage, recipe=m.full_task, episodes=p.full_task_demos, **runs)),
         Stage("dmp", f"fit the DMPs to the motion planner's episodes ({p.dmp_episodes})",
-              {"episodes": p.dmp_episodes, "library_revision": LIBRARY_REVISION, **env},
-              lambda out, _: _fit_dmp(out, p.dmp_episodes, task, p.resolution)),
-        Stage(BC_STAGE if dagger_stages else "cnn",
-              f"train the CNN policies on the demonstrations: {', '.join(cnn)} ({p.cnn_training(tuple(cnn))})",
-              {s: asdict(c) for s, c in cnn.items()},
-              lambda out, i: _train_cnn(out, i, cnn, spec), inputs=tuple(demo_stages), resumable=True),
-        *dagger_stages,
-        Stage("controller-rollouts", f"record rollouts of each controller ({p.rollouts} each)",
-              {**record(rollouts, p.rollouts), **library},
-              lambda out, i: _record(rollouts, out, p.rollouts, p.resolution, workers, _sources(i, task)),
-              inputs=("dmp", "cnn"), resumable=True, verify=_verify_dataset),
+              {"episodes": p.dmp_episodes, "library_revision": LIBRARY_REVISION, **m.env},
+              partial(_fit_dmp, episodes=p.dmp_episodes, task=task, resolution=p.resolution)),
+        Stage(BC_STAGE if dagger else "cnn",
+              f"train the CNN policies on the demonstrations: {', '.join(m.cnn)} ({p.cnn_training(tuple(m.cnn))})",
+              {s: asdict(c) for s, c in m.cnn.items()},
+              partial(_train_cnn, configs=m.cnn, spec=m.spec), inputs=demos, resumable=True),
+        *dagger,  # the CNN policies' DAgger rounds, the last of which trains stage "cnn"
+        # The world model: learned from the controllers' rollouts and the demonstrations.
+        _recording("controller-rollouts", f"record rollouts of each controller ({p.rollouts} each)",
+                   {**m.recording(m.rollouts, p.rollouts), **m.library},
+                   partial(_record_stage, recipe=m.rollouts, episodes=p.rollouts, task=task, **runs),
+                   inputs=("dmp", "cnn")),
         Stage("world-model", "train the VAE, the dynamics models, the goal scorers and the predicate classifiers",
-              {"vae": asdict(vae), "dynamics": asdict(dynamics), "goal": asdict(goal), "cameras": cameras,
-               "predicates": asdict(predicates)},
-              lambda out, i: _train_world(out, i, vae, dynamics, goal, predicates, labelled, cameras),
+              {"vae": asdict(m.vae), "dynamics": asdict(m.dynamics), "goal": asdict(m.goal),
+               "cameras": m.spec.cameras, "predicates": asdict(m.predicates)},
+              partial(_train_world, vae=m.vae, dynamics=m.dynamics, goal=m.goal, predicates=m.predicates,
+                      labelled=labelled, cameras=m.spec.cameras),
               inputs=tuple(dict.fromkeys(("controller-rollouts", "full-task-demos", *labelled))), resumable=True),
         Stage("goal-score", "evaluate the goal score of each camera on the held-out demonstrations",
-              {"cameras": cameras},
-              lambda out, i: _evaluate_goal(out, i, cameras), inputs=("world-model", "full-task-demos")),
-        Stage("table", f"Table I: each controller kind on each subtask ({p.table_trials} per cell{inserts})",
-              {"trials": p.table_trials, "insert_trials": p.insert_trials, "kinds": table_kinds, **env, **library},
-              lambda out, i: _table(out, i, p, table_kinds, workers, task), inputs=("dmp", "cnn")),
-    ]
-    if gear:
-        # The paper's Table I as the paper got it: the MP and DMP insertions go straight down once
-        # (`--insertion straight`); their rollouts and dynamics models are recorded and trained again for it.
-        jobs += [
-            Stage("straight-rollouts", f"record rollouts of the straight-down insertions ({p.rollouts} each)",
-                  {**record(straight_rollouts, p.rollouts), **library},
-                  lambda out, i: _record(straight_rollouts, out, p.rollouts, p.resolution, workers,
-                                         _sources(i, task, "straight")),
-                  inputs=("dmp", "cnn"), resumable=True, verify=_verify_dataset),
+              {"cameras": m.spec.cameras},
+              partial(_evaluate_goal, cameras=m.spec.cameras), inputs=("world-model", "full-task-demos")),
+        # Table I and the compositions.
+        Stage("table", f"Table I: each controller kind on each subtask ({trials})",
+              {"trials": p.table_trials, "insert_trials": p.insert_trials, "kinds": m.table_kinds, **ran},
+              partial(_table, p=p, kinds=m.table_kinds, workers=workers, task=task), inputs=("dmp", "cnn")),
+        # The gear's only: the paper's Table I as the paper got it, the MP and DMP insertions going straight down
+        # once (`--insertion straight`), with their rollouts and dynamics models recorded and trained again for it.
+        *([
+            _recording("straight-rollouts", f"record rollouts of the straight-down insertions ({p.rollouts} each)",
+                       {**m.recording(m.straight_rollouts, p.rollouts), **m.library},
+                       partial(_record_stage, recipe=m.straight_rollouts, episodes=p.rollouts, task=task,
+                               insertion="straight", **runs),
+                       inputs=("dmp", "cnn")),
             Stage("straight-world-model", "train the straight-down insertions' dynamics models",
-                  {"dynamics": asdict(dynamics), "controllers": STRAIGHT},
-                  lambda out, i: _train_straight(out, i, dynamics),
+                  {"dynamics": asdict(m.dynamics), "controllers": STRAIGHT},
+                  partial(_train_straight, dynamics=m.dynamics),
                   inputs=("world-model", "straight-rollouts", "full-task-demos")),
-            Stage("straight-table", f"Table I with the straight-down insertions: MP and DMP ({p.table_trials} per "
-                  f"cell{inserts})", {"trials": p.table_trials, "insert_trials": p.insert_trials, **env, **library},
-                  lambda out, i: _table(out, i, p, ("MP", "DMP"), workers, task, "straight", ("insert", "full")),
+            Stage("straight-table", f"Table I with the straight-down insertions: MP and DMP ({trials})",
+                  {"trials": p.table_trials, "insert_trials": p.insert_trials, **ran},
+                  partial(_table, p=p, kinds=("MP", "DMP"), workers=workers, task=task, insertion="straight",
+                          columns=("insert", "full")),
                   inputs=("dmp", "cnn")),
-            compose_stage("straight-compose", "compose the library with the straight-down insertions", compose,
-                          "straight", "straight-world-model"),
-            compose_stage("sensed-straight-compose", "compose it again on the predicate classifiers", sensed,
-                          "straight", "straight-world-model"),
-        ]
-    jobs += [
-        compose_stage("compose", "compose the library with the selector", compose, default, "world-model"),
-        compose_stage("sensed-compose", "compose it again on the predicate classifiers", sensed, default,
-                      "world-model"),
-    ]
-    if gear:
-        jobs += [
+            compose("straight-compose", "compose the library with the straight-down insertions", m.compose,
+                    "straight", "straight-world-model"),
+            compose("sensed-straight-compose", "compose it again on the predicate classifiers", m.sensed,
+                    "straight", "straight-world-model"),
+        ] if gear else []),
+        compose("compose", "compose the library with the selector", m.compose, m.insertion, "world-model"),
+        compose("sensed-compose", "compose it again on the predicate classifiers", m.sensed, m.insertion,
+                "world-model"),
+        # The gear's only: recovery from a knock-out, and the random-walk MDP.
+        *([
             Stage("knock-out", f"recovery from the gear knocked out of the gripper (episodes: {p.knockout_episodes})",
-                  {"compose": asdict(compose), "episodes": p.knockout_episodes, "knock_out_step": 100, **env,
-                   **library},
-                  lambda out, i: _compose(out, i, compose, list(range(100, 100 + p.knockout_episodes)), p.resolution,
-                                           100, workers, task, default, "world-model"),
+                  {"compose": asdict(m.compose), "episodes": p.knockout_episodes, "knock_out_step": 100, **ran},
+                  partial(_compose, config=m.compose, seeds=list(range(100, 100 + p.knockout_episodes)),
+                          knock_out_step=100, task=task, insertion=m.insertion, world="world-model", **runs),
                   inputs=("dmp", "cnn", "world-model"), resumable=True),
             Stage("mdp", "the random-walk MDP experiments (19 and 100 states)",
                   {"episodes_19": p.mdp_episodes_19, "episodes_100": p.mdp_episodes_100, "levels": p.mdp_levels},
-                  lambda out, _: _mdp(out, p)),
-        ]
-    return jobs
+                  partial(_mdp, p=p)),
+        ] if gear else []),
+    ]
+
+
+def _recording(name: str, title: str, key: dict, run: Callable[[Path, dict[str, Path]], dict],
+               inputs: tuple[str, ...] = ()) -> Stage:
+    """A stage that records a dataset: it resumes episode by episode, and what it recorded is verified first."""
+    return Stage(name, title, key, run, inputs=inputs, resumable=True, verify=_verify_dataset)
+
+
+def _composition(name: str, what: str, config: ComposeConfig, insertion: str, world: str, p: Profile, task: str,
+                 workers: int, key: dict) -> Stage:
+    """A stage that composes the library with the selector (`config`) on the world model of stage `world`, the
+    planned controllers inserting as `insertion` says, over seeds 0 to p.compose_episodes - 1. `key`: the env's and
+    the library's."""
+    return Stage(name, f"{what} (episodes: {p.compose_episodes})",
+                 {"compose": asdict(config), "episodes": p.compose_episodes, **key},
+                 partial(_compose, config=config, seeds=list(range(p.compose_episodes)), resolution=p.resolution,
+                         knock_out_step=None, workers=workers, task=task, insertion=insertion, world=world),
+                 inputs=("dmp", "cnn", world), resumable=True)
 
 
 def run_demo(profile: str = "quick", out: str | Path = "results", workers: int = 1,
@@ -220,25 +258,27 @@ def run_demo(profile: str = "quick", out: str | Path = "results", workers: int =
     return records, report
 
 
-def _dagger_rounds(p: Profile, spec: TaskSpec, subtasks: dict[str, tuple], workers: int) -> list[Stage]:
-    """DAgger for the CNN policies of `subtasks` (subtask -> its corrections recipe, training config and recording
-    key), `p.dagger_rounds` times: record each last policy's rollouts labelled by the expert (`insertion-dagger-K`,
+def _dagger_rounds(p: Profile, m: Makings, workers: int) -> list[Stage]:
+    """DAgger for the CNN policies of `m.dagger` (subtask -> its corrections recipe and training config),
+    `p.dagger_rounds` times: record each last policy's rollouts labelled by the expert (`insertion-dagger-K`,
     `move-dagger-K`), then train each anew on its demonstrations and every round's rollouts. The last round's model
     is stage `cnn`, the library's (with no rounds, the demonstrations' is)."""
-    stages, policy, rollouts = [], BC_STAGE, {s: () for s in subtasks}
+    stages, policy, rollouts = [], BC_STAGE, {s: () for s in m.dagger}
     for k in range(1, p.dagger_rounds + 1):
-        for s, (recipe, _, key) in subtasks.items():
+        for s, (recipe, _) in m.dagger.items():
             seed, name = DAGGER_SEEDS[s] + 1000 * (k - 1), f"{stage_name(recipe.name)}-{k}"
             rollouts[s] += (name,)
-            stages.append(Stage(name, f"record the CNN {s} policy's rollouts labelled by the expert (DAgger round {k}, "
-                                f"{p.dagger_episodes})", {**key, "seed": seed},
-                                partial(_dagger_record, recipe, p, workers, policy, seed, spec.name),
-                                inputs=(policy,),
-                                resumable=True, verify=_verify_dataset))
+            stages.append(_recording(name, f"record the CNN {s} policy's rollouts labelled by the expert (DAgger "
+                                     f"round {k}, {p.dagger_episodes})",
+                                     {**m.recording(recipe, p.dagger_episodes), "seed": seed},
+                                     partial(_record_stage, recipe=recipe, episodes=p.dagger_episodes,
+                                             resolution=p.resolution, workers=workers, task=m.spec.name, cnn=policy,
+                                             seed=seed),
+                                     inputs=(policy,)))
         trained = "cnn" if k == p.dagger_rounds else f"dagger-cnn-{k}"
-        configs = {s: config for s, (_, config, _) in subtasks.items()}
-        datasets = {s: (stage_name(spec.demonstrations[s][0]), *rollouts[s]) for s in subtasks}
-        stages.append(Stage(trained, f"train the CNN {', '.join(subtasks)} policies on their demonstrations and {k} "
+        configs = {s: config for s, (_, config) in m.dagger.items()}
+        datasets = {s: (stage_name(m.spec.demonstrations[s][0]), *rollouts[s]) for s in m.dagger}
+        stages.append(Stage(trained, f"train the CNN {', '.join(m.dagger)} policies on their demonstrations and {k} "
                             f"round(s) of the expert's corrections ({p.dagger_epochs} epochs)",
                             {s: asdict(c) for s, c in configs.items()},
                             partial(_train_dagger, configs=configs, policy=policy, datasets=datasets),
@@ -248,9 +288,12 @@ def _dagger_rounds(p: Profile, spec: TaskSpec, subtasks: dict[str, tuple], worke
     return stages
 
 
-def _dagger_record(recipe, p: Profile, workers: int, policy: str, seed: int, task: str, out: Path,
-                   inputs: dict[str, Path]) -> dict:
-    return _record(recipe, out, p.dagger_episodes, p.resolution, workers, _sources(inputs, task, cnn=policy), seed)
+def _record_stage(out: Path, inputs: dict[str, Path], recipe: Recipe, episodes: int, resolution: int, workers: int,
+                  task: str | None = None, insertion: str = "", cnn: str = "cnn", seed: int = 0) -> dict:
+    """A recording stage's run: `episodes` of `recipe` into out/dataset; with a `task`, the recipe's controllers are
+    that task's library with the models of the stages it reads (`_sources`)."""
+    sources = _sources(inputs, task, insertion, cnn) if task else None
+    return _record(recipe, out, episodes, resolution, workers, sources, seed)
 
 
 def _record(recipe, out: Path, episodes: int, resolution: int, workers: int, sources=None, seed: int = 0) -> dict:
@@ -278,7 +321,7 @@ def _sources(inputs: dict[str, Path], task: str, insertion: str = "", cnn: str =
     return LibrarySources(models=models, insertion=insertion, task=task)
 
 
-def _fit_dmp(out: Path, episodes: int, task: str, resolution: int) -> dict:
+def _fit_dmp(out: Path, inputs: dict[str, Path], episodes: int, task: str, resolution: int) -> dict:
     description = get_task(task)
     env = description.make_env("state_dict", description.spec.env_settings(resolution=resolution))
     try:
@@ -375,7 +418,7 @@ def _compose(out: Path, inputs: dict[str, Path], config, seeds: list[int], resol
             "workers": workers}
 
 
-def _mdp(out: Path, p: Profile) -> dict:
+def _mdp(out: Path, inputs: dict[str, Path], p: Profile) -> dict:
     levels = {"levels": p.mdp_levels} if p.mdp_levels else {}
     s19, heatmaps = mdp.run_experiments(out, p.mdp_episodes_19, p.mdp_episodes_100, **levels)
     return {"mean_planning_steps_19": s19["mean_planning_steps"],
