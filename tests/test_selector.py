@@ -283,6 +283,9 @@ def test_the_summary_counts_back_offs_and_what_came_of_them():
     assert "backed off with the gear (instead of letting it go where its subtask fails) in 3 episodes; another " \
            "controller then finished the task in 1/3." in text
     assert back_offs(episodes[2:3]) == "" and "backed off" not in summary(episodes[2:3], ComposeConfig())
+    # How long the successes took, against the episode's limit; the paper's figure only beside the paper's task.
+    assert "Control steps of the successful episodes (at most 900): median 300, 300-300." in text
+    assert "| paper |" in text and "| paper |" not in summary(episodes, ComposeConfig(), paper=False)
 
 
 def test_the_served_table_says_which_controller_finished_each_subtask():

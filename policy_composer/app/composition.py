@@ -28,6 +28,7 @@ from policy_composer.policies.library import build_library, cameras_needed, chec
 from policy_composer.selector.compose import ComposedEpisode, compose_episode
 from policy_composer.selector.configuration import ComposeConfig
 from policy_composer.selector.world_model import GearWorldModel
+from policy_composer.tasks.registry import DEFAULT_TASK
 
 PAPER_COMPOSED = "10/10"  # paper Table I: MP + CNN composed by the selector, full task
 MILESTONES = ("picked", "at the pre-insertion pose", "seated")  # the full task's subtasks done, in order
@@ -166,7 +167,7 @@ def compose_library(models: str | Path, sources, config: ComposeConfig, seeds: l
         others = [e for s, e in kept.items() if s not in seeds]  # the earlier run's seeds that this one did not ask
         # In seed order, as a serial run writes it (workers finish in any order).
         atomic.write_text(path, "".join(json.dumps(e.to_dict()) + "\n" for e in [*episodes, *others]))
-        atomic.write_text(out / "summary.md", summary(episodes, config))
+        atomic.write_text(out / "summary.md", summary(episodes, config, paper=sources.task == DEFAULT_TASK))
         return episodes
 
 
@@ -289,14 +290,21 @@ SENSED = {"learned": "The controllers' initiation sets, terminations and guards 
                     "oracle): privileged, for comparison."}
 
 
-def summary(episodes: list[ComposedEpisode], config: ComposeConfig) -> str:
+def summary(episodes: list[ComposedEpisode], config: ComposeConfig, paper: bool = True) -> str:
+    """The run's summary; `paper`: with the paper's composed figure beside it (the gear's task)."""
     n, ok = len(episodes), sum(e.success for e in episodes)
+    steps = sorted(e.steps for e in episodes if e.success)
     lines = ["# Composed controllers (the selector over the whole library)", "",
              f"Horizon n = {config.horizon}, K = {config.samples} samples per controller, decisions at termination"
              + (f" and every {config.reselect_every} steps" if config.reselect_every else "") + ". "
              + SENSED[config.senses], "",
-             "| | full task | progressive completion | paper |", "|---|---|---|---|",
-             f"| composed | {rate(ok, n)} | {progressive([e.reached for e in episodes])} | {PAPER_COMPOSED} |", ""]
+             "| | full task | progressive completion |" + (" paper |" if paper else ""),
+             "|---|---|---|" + ("---|" if paper else ""),
+             f"| composed | {rate(ok, n)} | {progressive([e.reached for e in episodes])} |"
+             + (f" {PAPER_COMPOSED} |" if paper else ""), ""]
+    if steps:
+        lines += [f"Control steps of the successful episodes (at most {config.max_steps}): median "
+                  f"{steps[len(steps) // 2]}, {steps[0]}-{steps[-1]}.", ""]
     knocked = [e for e in episodes if e.knocked_out]
     if knocked:
         lines += [f"Gear knocked out of the gripper in {len(knocked)} episodes; recovered (task still done) in "

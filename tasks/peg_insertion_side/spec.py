@@ -17,7 +17,7 @@ STATE_NAMES = (*ARM_JOINTS, "gripper_width")
 ACTION_NAMES = (*ARM_JOINTS, "gripper")
 CONTROL_MODE = "pd_joint_pos"
 MAX_EPISODE_STEPS = 100  # ManiSkill's default
-EPISODE_LIMIT = 200  # control steps an episode of the library's may take: twice ManiSkill's default
+EPISODE_LIMIT = 300  # control steps a composed episode may take: pick, carry and two insertions (ManiSkill: 100)
 EXPERT_PHASES = ("approach", "descend", "close", "lift", "move", "align", "insert", "done")
 # What the controllers' initiation sets and terminations are made of (labels of the recordings).
 PREDICATES = {
