@@ -90,8 +90,8 @@ SPEC = TaskSpec(
     fixed_cameras=("base_camera",),
     controller_rollouts="peg-controller-rollouts",
     corrections={"insert": "peg-insertion-dagger"},
-    # Measured: two rounds took 37 of the job's 63 minutes and left the CNN insertion at 3/10; what its labels correct
-    # (the peg's height and place against a hole in the box's side) the hand camera cannot see (docs/task.md).
+    # What the expert's corrections correct, the peg against a hole in the box's side, the hand camera cannot see:
+    # the rounds cost the job's time and did not help (docs/task.md).
     dagger_rounds=0,
     episode_steps=EPISODE_LIMIT,
 )
