@@ -78,9 +78,9 @@ class Move(Subtask):
 
 
 class Insert(Subtask):
-    """Line the peg up on the hole's axis, as the planned grasp says the hand holds it, then push it along the axis to
-    the depth that grasp puts the head at. The line-up is open loop: where the peg sits in the fingers is the plan's,
-    not seen, so a peg that slid or pivoted there meets the box's face."""
+    """Line the peg up on the hole's axis, as the planned grasp says the hand holds it, trim the hand's sag measured
+    from the joints there (`Waypoint.trim`), then push the peg along the axis to the depth that grasp puts the head at.
+    Where the peg sits in the fingers is the plan's, not seen: a peg that slid or pivoted there meets the box's face."""
 
     name = "insert"
     initiation = "peg in the hand at the pre-insertion pose, or part-way in and not seated"
