@@ -30,16 +30,15 @@ TRAIN_HINT = "policy-composer train predicates"
 HELD_OUT_EVERY = 5  # every fifth episode of each dataset is held out of the training, for the figures
 def proprioception_names(task: TaskDescription) -> tuple[str, ...]:
     """What the classifiers know of the robot besides the cameras: its joint state, and what the task's kinematics
-    add (on the gear: where the left hand is over the peg by both arms' forward kinematics)."""
+    add (on the gear: where the left hand is over the peg by both arms' forward kinematics; on the peg: where the hand
+    is against the hole the planner knows)."""
     return (*task.spec.state_names, *task.extra_proprioception)
 
 
-def proprioception(state: torch.Tensor, task: TaskDescription) -> torch.Tensor:
-    """(N, len(proprioception_names(task))) float32 of joint states (N, S)."""
-    if task.proprioception is None:
-        return state.float()
-    extra = torch.as_tensor(task.proprioception(state.double().numpy()), dtype=torch.float32)
-    return torch.cat([state.float(), extra], dim=-1)
+def proprioception(state: torch.Tensor, task: TaskDescription, scene: torch.Tensor | None = None) -> torch.Tensor:
+    """(N, len(proprioception_names(task))) float32 of joint states (N, S) and, where the task has them, the scenes
+    the robot knows (N, len(task.spec.scene_names))."""
+    return torch.cat([state.float(), task.kinematics(state, scene)], dim=-1)
 
 
 class PredicateModel(nn.Module):
@@ -112,7 +111,8 @@ def train_predicates(frames: dict[str, torch.Tensor], out: str | Path, config: P
                      predicates: tuple[str, ...] | None = None, progress: bool = True,
                      resume: bool = False) -> dict[str, dict]:
     """One classifier per predicate on `frames` (`load_frames` of the labelled recordings, with the config's cameras,
-    "observation.state", "predicates" and "held_out", the frames of `held_out` episodes), each judged on the held-out
+    "observation.state", "predicates", "held_out", the frames of `held_out` episodes, and
+    "observation.environment_state" where the task has it), each judged on the held-out
     frames; returns each one's held-out figures and training time."""
     config = config or PredicateConfig()
     task = get_task(config.task)
@@ -122,7 +122,7 @@ def train_predicates(frames: dict[str, torch.Tensor], out: str | Path, config: P
     for name in predicates:
         check_out(out / "predicates" / name, PredicateConfig)
     images, labels = stacked(frames, config.cameras), frames["predicates"]
-    state = proprioception(frames["observation.state"], task)
+    state = proprioception(frames["observation.state"], task, frames.get("observation.environment_state"))
     test = frames["held_out"]
     if test.all():
         raise ValueError("the predicates need episodes to train on besides the held-out ones; record more episodes")
@@ -183,7 +183,8 @@ class LearnedSenses(CachedSenses):
             raise ValueError(f"the predicate classifiers read cameras {missing}; make the env with them "
                              f"(and obs_mode='rgb')")
         images = {c: to_model_image(sensors[c]["rgb"][:1].cpu(), self.size) for c in self.cameras}
-        state = proprioception(obs["extra"]["state"][:1].cpu(), self.task)
+        scene = obs["extra"].get("scene")
+        state = proprioception(obs["extra"]["state"][:1].cpu(), self.task, None if scene is None else scene[:1].cpu())
         p = {name: float(torch.sigmoid(model(torch.cat([images[c] for c in model.config.cameras], 1), state))[0])
              for name, model in self.models.items()}
         if self.task.rule_out is not None:

@@ -166,11 +166,13 @@ def train_predicate_models(datasets: list[str | Path], out: str | Path, config: 
     config = config or PredicateConfig()
     check_distinct(datasets)
     with model_writer(out):
+        spec = get_spec(config.task)
+        scene = ("observation.environment_state",) if spec.scene_names else ()
         frames = [load_frames(d, config.cameras, config.image_size,
-                              required={"predicates": (len(get_spec(config.task).predicates),),
-                                        "observation.state": None},
+                              required={"predicates": (len(spec.predicates),), "observation.state": None,
+                                        **{k: (len(spec.scene_names),) for k in scene}},
                               progress=progress) for d in datasets]
-        keys = (*(image_key(c) for c in config.cameras), "observation.state", "predicates")
+        keys = (*(image_key(c) for c in config.cameras), "observation.state", *scene, "predicates")
         joined = {k: torch.cat([f[k] for f in frames]) for k in keys}
         joined["held_out"] = torch.cat([held_out(f["episode_index"]) for f in frames])
         return train_predicates(joined, out, config, progress=progress, resume=resume)

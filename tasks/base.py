@@ -174,8 +174,13 @@ class TaskSpec:
     # The most DAgger rounds the main job runs on this task (None: as many as its profile says).
     dagger_rounds: int | None = None
     episode_steps: int | None = None  # control steps a composed episode may take (None: the main job's profile says)
+    # The main job trains the predicate classifiers this many times its profile's epochs on this task.
+    predicate_epoch_factor: int = 1
     fixed_cameras: tuple[str, ...] = ()  # the cameras not on the arm (the paper compares them with those on it)
     insertion_windows: Mapping[str, tuple[float, float, float]] = field(default_factory=dict)
+    # What the robot knows of each episode's scene, as its planner does (observation.environment_state, `extra.scene`
+    # of an observation): empty where the scene the controllers know is the same in every episode.
+    scene_names: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -202,10 +207,11 @@ class TaskDescription:
     # hand (3), each predicate (0 or 1)
     labels: Callable[[Any, dict | None], tuple[int, np.ndarray, np.ndarray]]
     stage: Callable[[Any, dict], int]  # (env, its info) -> how many of the task's stages it has reached
-    # The predicate classifiers' proprioception beyond observation.state: its names, and (N, state) -> (N, names);
+    # The predicate classifiers' proprioception beyond observation.state: its names, and (N, state), (N, scene) or
+    # None -> (N, names);
     # and how the kinematics it gives rule predicates out: (probabilities, one frame's extra entries) -> probabilities.
     extra_proprioception: tuple[str, ...] = ()
-    proprioception: Callable[[np.ndarray], np.ndarray] | None = None
+    proprioception: Callable[[np.ndarray, np.ndarray | None], np.ndarray] | None = None
     rule_out: Callable[[dict[str, float], np.ndarray], dict[str, float]] | None = None
     # Where each subtask's trials and rollouts start: a start state of the env's (subtask -> the reset option
     # "start"), or where the scripted expert, run unobserved from the reset, reaches a phase (subtask -> phase); any
@@ -214,6 +220,18 @@ class TaskDescription:
     expert_starts: Mapping[str, str] = field(default_factory=dict)
     start_expert: Callable[[Any], Any] | None = None  # env -> the expert that takes the scene to `expert_starts`
     step_unobserved: Callable[[Any, torch.Tensor], None] | None = None  # (env, flat action): physics, no renders
+
+    def kinematics(self, state: torch.Tensor, scene: torch.Tensor | None = None) -> torch.Tensor:
+        """(N, len(extra_proprioception)) float32: what the task's kinematics add to joint states (N, S), given the
+        scenes the robot knows (N, len(spec.scene_names)) where the task has them."""
+        if self.proprioception is None:
+            return state.new_zeros((len(state), 0)).float()
+        if self.spec.scene_names and scene is None:
+            raise ValueError(f"{self.spec.env_id}'s kinematics need the scene the robot knows "
+                             "(observation.environment_state, the observation's extra.scene); record the dataset "
+                             "again with it")
+        scene = None if scene is None else scene.double().cpu().numpy()
+        return state.new_tensor(self.proprioception(state.double().cpu().numpy(), scene)).float()
 
     def settings(self, resolution: int, **settings):
         """The task's env settings at `resolution`, with those of `settings` the task has (a gear's clearance)."""

@@ -8,6 +8,7 @@ from types import SimpleNamespace
 
 import pytest
 
+from policy_composer.data.recipes import load_recipe
 from policy_composer.tasks.peg_insertion_side.env import make_env
 from policy_composer.tasks.peg_insertion_side.expert import (
     EXPERT_PHASES,
@@ -15,6 +16,7 @@ from policy_composer.tasks.peg_insertion_side.expert import (
     PegInsertionSideExpert,
     run_episode,
 )
+from policy_composer.tasks.peg_insertion_side.spec import ExpertSettings
 
 STEP_BUDGET = 150  # ManiSkill's episode is 100 control steps; the expert needs about 85 (at most about 105)
 
@@ -54,6 +56,20 @@ def test_with_dart_noise_the_executed_action_is_off_the_label_and_the_peg_is_sti
                          on_step=lambda *_: perturbed.append(bool((expert.executed != expert.label).any())))
     assert result.strict_success and not result.overshoot
     assert any(perturbed)
+
+
+def test_the_insertion_demonstrators_recipe_pushes_at_once_and_still_seats_the_peg(env):
+    """`peg-insertion-demos` asks the expert to push without waiting in front of the hole for a line-up only the
+    simulator can judge (align_steps = 0): it spends one step aligning, lines the peg up as it pushes, and seats it
+    with its DART noise; a negative setting is refused in one line."""
+    settings = load_recipe("peg-insertion-demos").expert
+    assert settings.align_steps == 0
+    expert = PegInsertionSideExpert(env, settings.config())
+    result = run_episode(env, expert, 0, STEP_BUDGET)
+    assert result.strict_success and not result.overshoot
+    assert result.phases.count("align") == 1
+    with pytest.raises(ValueError, match="align_steps must be a whole number"):
+        ExpertSettings(align_steps=-1)
 
 
 def test_it_refuses_more_than_one_environment_and_other_control_modes():

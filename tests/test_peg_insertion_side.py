@@ -13,10 +13,13 @@ from mani_skill.utils.structs.pose import Pose
 from policy_composer.data.features import read_info, read_sidecar
 from policy_composer.policies import subtasks
 from policy_composer.policies.arm import Outcome, run_activation
+from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
+from policy_composer.policies.cnn.train import policy_state
 from policy_composer.policies.library import LibrarySources, build_library
 from policy_composer.tasks.base import PlanningError
 from policy_composer.tasks.peg_insertion_side.env import CAMERA_NAMES, PREDICATES, make_env, predicates, strict_success
-from policy_composer.tasks.peg_insertion_side.spec import STATE_NAMES
+from policy_composer.tasks.peg_insertion_side.kinematics import hand_in_hole
+from policy_composer.tasks.peg_insertion_side.spec import SCENE_NAMES, STATE_NAMES
 from policy_composer.tasks.peg_insertion_side.task import labels
 
 
@@ -132,6 +135,7 @@ def test_the_recorder_records_the_peg_tasks_expert_from_both_cameras(tmp_path):
     assert {f"observation.images.{c}" for c in CAMERA_NAMES} <= set(info["features"])
     assert info["features"]["observation.state"]["names"] == list(STATE_NAMES)
     assert info["features"]["predicates"]["names"] == list(PREDICATES)
+    assert info["features"]["observation.environment_state"]["names"] == list(SCENE_NAMES)
     sidecar = read_sidecar(root)
     assert sidecar["task_name"] == "peg-insertion-side" and sidecar["episodes"][0]["success"]
     frames = LeRobotDataset("local/peg", root=root)
@@ -141,6 +145,9 @@ def test_the_recorder_records_the_peg_tasks_expert_from_both_cameras(tmp_path):
     seated = list(PREDICATES).index("peg_seated")
     last = [bool(frames[len(frames) - 1 - k]["predicates"][seated]) for k in range(5)]
     assert all(last) and not frames[0]["predicates"][seated]
+    # The scene the robot knows is the box's, which stays put: the same hole pose in every frame, a unit quaternion.
+    scene = torch.stack([frames[i]["observation.environment_state"] for i in range(len(frames))])
+    assert torch.allclose(scene, scene[:1].expand_as(scene)) and abs(float(scene[0, 3:7].norm()) - 1) < 1e-5
     refused = run_cli("record", "peg-full-task-demos", "--clearance", "2", "--root", str(tmp_path / "no"),
                       cwd=tmp_path)
     assert refused.returncode == 2 and "PegInsertionSide-v1 has no setting clearance" in refused.stderr
@@ -155,7 +162,21 @@ def test_the_pre_insertion_start_holds_the_peg_in_front_of_the_hole_at_step_zero
     assert bool(flags["peg_grasped"][0]) and bool(flags["peg_at_hole"][0]) and not bool(flags["peg_inserted"][0])
     assert int(env.unwrapped.elapsed_steps[0]) == 0 and int(info["stage"][0]) == 2
     assert not bool(info["success"][0]) and not bool(info["success_maniskill"][0])
-    assert obs["extra"]["state"].shape == (1, 8)
+    assert obs["extra"]["state"].shape == (1, 8) and obs["extra"]["scene"].shape == (1, len(SCENE_NAMES))
+    # Where the robot knows its hand is against the hole, by its joints' kinematics and the hole the planner knows, is
+    # where the simulator has it: a TCP behind the box's near face on the hole's axis, the hand's fingers across it.
+    known = hand_in_hole(obs["extra"]["state"].numpy(), obs["extra"]["scene"].numpy())[0]
+    u = env.unwrapped
+    tcp = u.box_hole_pose.inv() * u.agent.tcp.pose
+    assert np.allclose(known[:3], tcp.p[0].numpy(), atol=1e-4), (known, tcp.p)
+    assert np.allclose(known[3:6], tcp.to_transformation_matrix()[0, 0, :3].numpy(), atol=1e-4)
+    assert known[0] < -float(u.peg_half_sizes[0, 0]) and np.linalg.norm(known[1:3]) < 0.01
+    # The head where the planned grasp holds the peg: in front of the box's near face, within the hole's radius of its
+    # axis and a few mm of the true head (the carry's residual error and how the peg sits in the fingers).
+    head = (u.box_hole_pose.inv() * u.peg.pose).p[0].numpy() + [float(u.peg_half_sizes[0, 0]), 0, 0]
+    assert np.linalg.norm(known[6:9] - head) < 0.02, (known[6:9], head)
+    assert -float(u.peg_half_sizes[0, 0]) - 0.05 < known[6] < -float(u.peg_half_sizes[0, 0])
+    assert known[9] == pytest.approx(known[6] + float(u.peg_half_sizes[0, 0])) and -0.002 > known[10] > -0.005
     with pytest.raises(ValueError, match="starts at 'table' or 'pre_insertion'"):
         env.reset(seed=5, options={"start": "in_the_hole"})
 
@@ -178,3 +199,19 @@ def test_the_main_job_composes_the_peg_task_through_the_generic_stages(tmp_path)
         assert row in report, f"{row!r} missing from the report"
     cnn = next(line for line in report.splitlines() if line.startswith("| CNN | "))
     assert "/2 (95% CI " in cnn and "paper" not in report.split("## Table I")[1].split("##")[0]
+
+
+def test_the_peg_cnn_policy_reads_where_its_hand_is_against_the_hole(env):
+    """On a task whose scene differs between episodes, the CNN policy reads by default, besides its image, the
+    gripper's width and where its hand is against the scene the robot knows (the hand camera cannot see the hole in
+    the box's side); on the gear, whose scene is the same in every episode, the gripper's width only."""
+    config = CNNPolicyConfig(task="peg-insertion-side")
+    assert config.proprioception == "scene" and config.state_dim == 1 + 11
+    assert CNNPolicyConfig().proprioception == "gripper" and CNNPolicyConfig().state_dim == 1
+    obs, _ = env.reset(seed=7, options={"start": "pre_insertion"})
+    state, scene = obs["extra"]["state"].float(), obs["extra"]["scene"]
+    read = policy_state(state, config, scene)
+    assert read.shape == (1, 12) and float(read[0, 0]) == pytest.approx(float(state[0, 7]))
+    assert np.allclose(read[0, 1:].numpy(), hand_in_hole(state.numpy(), scene.numpy())[0], atol=1e-6)
+    with pytest.raises(ValueError, match="observation.environment_state"):
+        policy_state(state, config)

@@ -6,14 +6,17 @@ from dataclasses import dataclass
 
 from policy_composer.learning.config import BACKBONES, TrainingConfig, option
 from policy_composer.policies.registry import register_kind
-from policy_composer.tasks.registry import get_spec
+from policy_composer.tasks.registry import get_spec, get_task
 
 # What the policy reads of observation.state besides its image, and its size:
 # "gripper": the gripper's width only. With the joints as input, a few dozen demonstrations can be fitted from
 #            the joints alone (each episode's joint path is unique), and the image gets ignored; measured on
 #            the insertion table, see docs/controllers.md.
 # "arm": the driven arm's 7 joints and the gripper width (the paper's wording).
-PROPRIOCEPTION = {"gripper": slice(7, 8), "arm": slice(0, 8)}
+# "scene": the gripper width and what the task's kinematics add: where the hand is against the scene the robot knows
+#          (on the peg, the hand in the hole's frame: what the hand camera cannot see of a hole in the box's side).
+# "auto": "scene" where the task's scene differs between episodes (its spec's scene_names), "gripper" elsewhere.
+PROPRIOCEPTION = {"gripper": slice(7, 8), "arm": slice(0, 8), "scene": slice(7, 8)}
 # What the mixture density head predicts, and its size (the gripper command is the last entry of both):
 # "hand": the next TCP target as a displacement in the hand's own frame (the forearm camera's frame too, so
 #         what the image shows maps to the action without the arm's Jacobian); the controller turns it into
@@ -37,8 +40,9 @@ class CNNPolicyConfig(TrainingConfig):
                        "where the camera has one", ("auto", "whole", "insertion"))
     image_size: int = option(64, "images are resized to this square before the encoder", minimum=16)
     backbone: str = option("spatial", "image encoder (see learning.layers.image_encoder)", BACKBONES)
-    proprioception: str = option("gripper", "what the policy reads besides its image: the gripper width, or the "
-                                 "arm's joints too", tuple(PROPRIOCEPTION))
+    proprioception: str = option("auto", "what the policy reads besides its image: the gripper width, the arm's "
+                                 "joints too, or where the hand is against the scene the robot knows; auto: the "
+                                 "scene where it differs between episodes, else the gripper", (*PROPRIOCEPTION, "auto"))
     action_space: str = option("hand", "hand: next TCP displacement in the hand frame (IK to joint targets); "
                                "joint: joint-target deltas", tuple(ACTION_SPACES))
     hidden_dim: int = 256
@@ -66,6 +70,8 @@ class CNNPolicyConfig(TrainingConfig):
         super().__post_init__()
         spec = get_spec(self.task)
         self.camera = self.camera or spec.policy_camera
+        if self.proprioception == "auto":
+            self.proprioception = "scene" if spec.scene_names else "gripper"
         if self.camera not in spec.cameras:
             raise ValueError(f"CNNPolicyConfig.camera must be one of {spec.env_id}'s {', '.join(spec.cameras)}, not "
                              f"{self.camera!r}")
@@ -87,7 +93,8 @@ class CNNPolicyConfig(TrainingConfig):
     @property
     def state_dim(self) -> int:
         sl = PROPRIOCEPTION[self.proprioception]
-        return sl.stop - sl.start
+        extra = len(get_task(self.task).extra_proprioception) if self.proprioception == "scene" else 0
+        return sl.stop - sl.start + extra
 
     @property
     def action_dim(self) -> int:

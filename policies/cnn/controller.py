@@ -36,8 +36,11 @@ class CNNController(LearnedController):
         super().__init__(env, subtask, f"cnn_{subtask.name}", max_steps or policy.config.max_steps)
         check_camera(self.env, policy.config.camera, "the CNN policy")
         self.policy = policy
-        sl = PROPRIOCEPTION[policy.config.proprioception]
-        self.obs_keys = (f"sensor_data.{policy.config.camera}.rgb", f"extra.state[{sl.start}:{sl.stop}]")
+        if policy.config.proprioception == "scene":
+            self.obs_keys = (f"sensor_data.{policy.config.camera}.rgb", "extra.state", "extra.scene")
+        else:
+            sl = PROPRIOCEPTION[policy.config.proprioception]
+            self.obs_keys = (f"sensor_data.{policy.config.camera}.rgb", f"extra.state[{sl.start}:{sl.stop}]")
 
     def reset(self, obs, seed=None):
         super().reset(obs, seed)
@@ -47,7 +50,9 @@ class CNNController(LearnedController):
     def predict(self, obs):
         camera, size = self.policy.config.camera, self.policy.config.image_size
         image = to_model_image(obs["sensor_data"][camera]["rgb"][:1].cpu(), size, self.policy.config.window)
-        state = policy_state(obs["extra"]["state"][:1].cpu().float(), self.policy.config)
+        scene = obs["extra"].get("scene")
+        state = policy_state(obs["extra"]["state"][:1].cpu().float(), self.policy.config,
+                             None if scene is None else scene[:1].cpu())
         a = self.policy.act(image, state)[0].numpy().astype(np.float64)
         gripper = float(np.clip(a[-1], -1.0, 1.0))
         if self.policy.config.action_space == "joint":

@@ -29,12 +29,16 @@ from policy_composer.learning.trainer import Fit, train_model
 from policy_composer.policies.cnn.configuration_cnn import PROPRIOCEPTION, SUBTASKS, CNNPolicyConfig
 from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
 from policy_composer.tasks.panda import PandaForwardKinematics
-from policy_composer.tasks.registry import get_spec
+from policy_composer.tasks.registry import get_spec, get_task
 
 
-def policy_state(state: torch.Tensor, config: CNNPolicyConfig) -> torch.Tensor:
-    """What the policy reads of observation.state (see PROPRIOCEPTION)."""
-    return state[..., PROPRIOCEPTION[config.proprioception]]
+def policy_state(state: torch.Tensor, config: CNNPolicyConfig, scene: torch.Tensor | None = None) -> torch.Tensor:
+    """What the policy reads of observation.state (N, S) and, where the task has them, the scenes the robot knows
+    (N, len(scene_names)) (see PROPRIOCEPTION)."""
+    own = state[..., PROPRIOCEPTION[config.proprioception]]
+    if config.proprioception != "scene":
+        return own
+    return torch.cat([own.float(), get_task(config.task).kinematics(state, scene)], dim=-1)
 
 
 def previous_commands(state: torch.Tensor, action: torch.Tensor, episode_index: torch.Tensor) -> torch.Tensor:
@@ -80,6 +84,9 @@ def load_demonstrations(root: str | Path | Sequence[str | Path], config: CNNPoli
     accepted = tuple(filter(None, (recipe, spec.corrections.get(config.subtask))))
     check_recipe(root, accepted, f"the CNN {config.subtask} policy")
     required = {"observation.state": (len(spec.state_names),), "action": (len(spec.action_names),), "stage": (1,)}
+    scene = "observation.environment_state" if config.proprioception == "scene" and spec.scene_names else None
+    if scene:
+        required[scene] = (len(spec.scene_names),)
     if config.offset_weight:
         required["gear_offset"] = (3,)
     frames = load_frames(root, (config.camera,), config.image_size, episodes, required=required, progress=progress,
@@ -93,7 +100,8 @@ def load_demonstrations(root: str | Path | Sequence[str | Path], config: CNNPoli
     if not keep.any():
         raise DatasetError(f"{root} has no frames of the {config.subtask} subtask (stages {list(stages)}); record "
                            f"{recipe} for it")
-    data = {"image": frames[image_key(config.camera)][keep], "state": policy_state(state[keep], config),
+    data = {"image": frames[image_key(config.camera)][keep],
+            "state": policy_state(state[keep], config, frames[scene][keep] if scene else None),
             "action": action_target(state[keep], action[keep], prev[keep], config.action_space)}
     if config.offset_weight:
         data["offset"] = frames["gear_offset"][keep]

@@ -101,7 +101,9 @@ class LeRobotPolicyController(LearnedController):
             self.preprocess, self.postprocess = make_pre_post_processors(
                 cfg, pretrained_path=str(path), preprocessor_overrides={"device_processor": {"device": "cpu"}})
         self.instruction = instruction or task.spec.instruction
-        self.obs_keys = tuple(f"sensor_data.{c}.rgb" for c, _ in self.images.values()) + ("extra.state",)
+        self.scene = "observation.environment_state" in cfg.input_features
+        self.obs_keys = (tuple(f"sensor_data.{c}.rgb" for c, _ in self.images.values()) + ("extra.state",)
+                         + (("extra.scene",) if self.scene else ()))
 
     def reset(self, obs, seed=None):
         super().reset(obs, seed)
@@ -112,6 +114,8 @@ class LeRobotPolicyController(LearnedController):
         batch = {key: to_model_image(obs["sensor_data"][camera]["rgb"][:1].cpu(), size)
                  for key, (camera, size) in self.images.items()}
         batch["observation.state"] = obs["extra"]["state"][:1].cpu().float()
+        if self.scene:
+            batch["observation.environment_state"] = obs["extra"]["scene"][:1].cpu().float()
         batch["task"] = [self.instruction]
         action = self.postprocess(self.policy.select_action(self.preprocess(batch)))
         a = action[0].cpu().numpy().astype(np.float64)

@@ -95,6 +95,8 @@ class Makings:
     insertion: str  # the planned insertions' default ("feel" on the gear)
     table_kinds: tuple[str, ...]  # Table I's rows
     env: dict  # in the key of each stage that runs the env (`env_key`)
+    # In the keys of the models that read the task's kinematics (the CNN policies, the predicate classifiers).
+    kinematics: tuple[str, ...]
     # In the keys of the stages that run the controllers (the DMPs' too: they learn the planner's trajectories): a
     # changed or added controller re-runs them.
     library: dict
@@ -122,11 +124,11 @@ class Makings:
             vae=VAEConfig(task=task, epochs=p.vae_epochs, image_size=p.image_size),
             dynamics=DynamicsConfig(task=task, epochs=p.dynamics_epochs),
             goal=GoalScoreConfig(task=task, epochs=p.goal_epochs, num_mixtures=p.mixtures, image_size=p.image_size),
-            predicates=PredicateConfig(task=task, epochs=p.predicate_epochs,
+            predicates=PredicateConfig(task=task, epochs=p.predicate_epochs * spec.predicate_epoch_factor,
                                        image_size=min(PredicateConfig.image_size, p.image_size)),
             compose=compose, sensed=replace(compose, senses="learned"),
             insertion=next(iter(get_task(task).insertions)), table_kinds=tuple(k.label for k in kinds().values()),
-            env=env_key(task, p.resolution),
+            env=env_key(task, p.resolution), kinematics=get_task(task).extra_proprioception,
             library={"library_revision": LIBRARY_REVISION, "controllers": all_names(LibrarySources(task=task))})
 
     def recording(self, recipe: Recipe, episodes: int) -> dict:
@@ -163,7 +165,7 @@ def stages(p: Profile, workers: int = 1, task: str = DEFAULT_TASK) -> list[Stage
               partial(_fit_dmp, episodes=p.dmp_episodes, task=task, resolution=p.resolution)),
         Stage(BC_STAGE if dagger else "cnn",
               f"train the CNN policies on the demonstrations: {', '.join(m.cnn)} ({p.cnn_training(tuple(m.cnn))})",
-              {s: asdict(c) for s, c in m.cnn.items()},
+              {**{s: asdict(c) for s, c in m.cnn.items()}, "kinematics": m.kinematics},
               partial(_train_cnn, configs=m.cnn, spec=m.spec), inputs=demos, resumable=True),
         *dagger,  # the CNN policies' DAgger rounds, the last of which trains stage "cnn"
         # The world model: learned from the controllers' rollouts and the demonstrations.
@@ -173,7 +175,7 @@ def stages(p: Profile, workers: int = 1, task: str = DEFAULT_TASK) -> list[Stage
                    inputs=("dmp", "cnn")),
         Stage("world-model", "train the VAE, the dynamics models, the goal scorers and the predicate classifiers",
               {"vae": asdict(m.vae), "dynamics": asdict(m.dynamics), "goal": asdict(m.goal),
-               "cameras": m.spec.cameras, "predicates": asdict(m.predicates)},
+               "cameras": m.spec.cameras, "predicates": asdict(m.predicates), "kinematics": m.kinematics},
               partial(_train_world, vae=m.vae, dynamics=m.dynamics, goal=m.goal, predicates=m.predicates,
                       labelled=labelled, cameras=m.spec.cameras),
               inputs=tuple(dict.fromkeys(("controller-rollouts", "full-task-demos", *labelled))), resumable=True),

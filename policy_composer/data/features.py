@@ -19,12 +19,12 @@ def image_key(camera: str) -> str:
 
 # Bump when dataset_features changes: the main job's recording stages key on it, so no recording without a column
 # the models need is reused.
-FEATURES_REVISION = 3
+FEATURES_REVISION = 4
 
 
 def dataset_features(spec: TaskSpec, cameras: tuple[str, ...] | None = None, resolution: int = 128) -> dict[str, dict]:
     """LeRobot feature spec of a recording of the task: camera videos (default: all of the task's), joint state,
-    action and the per-frame labels."""
+    action, what the robot knows of the episode's scene (where the task has it) and the per-frame labels."""
     cameras = spec.cameras if cameras is None else cameras
     unknown = set(cameras) - set(spec.cameras)
     if unknown:
@@ -36,6 +36,8 @@ def dataset_features(spec: TaskSpec, cameras: tuple[str, ...] | None = None, res
     features.update({
         "observation.state": {"dtype": "float32", "shape": (len(spec.state_names),), "names": list(spec.state_names)},
         "action": {"dtype": "float32", "shape": (len(spec.action_names),), "names": list(spec.action_names)},
+        **({"observation.environment_state": {"dtype": "float32", "shape": (len(spec.scene_names),),
+                                              "names": list(spec.scene_names)}} if spec.scene_names else {}),
         # frame_index / (T - 1) in a successful episode, -1 in a failed one: the goal score's target.
         "progress": {"dtype": "float32", "shape": (1,), "names": None},
         # The task's labels of the observed state (TaskDescription.labels), privileged, never a policy's input: the

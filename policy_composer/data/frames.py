@@ -17,8 +17,8 @@ from tqdm import tqdm
 from policy_composer.data.features import DatasetError, image_key
 from policy_composer.data.verify import open_dataset
 
-LABELS = ("observation.state", "action", "progress", "stage", "gear_offset", "predicates", "controller",
-          "episode_index", "frame_index")
+LABELS = ("observation.state", "observation.environment_state", "action", "progress", "stage", "gear_offset",
+          "predicates", "controller", "episode_index", "frame_index")
 
 
 def to_model_image(rgb: torch.Tensor, size: int, window: tuple[float, float, float] | None = None) -> torch.Tensor:

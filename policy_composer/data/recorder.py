@@ -108,6 +108,8 @@ class FrameBuffer(gym.Wrapper):
             self._frames.append({
                 **{image_key(c): prev["sensor_data"][c]["rgb"][0].cpu().numpy() for c in self.cameras},
                 "observation.state": prev["extra"]["state"][0].cpu().numpy().astype(np.float32),
+                **({"observation.environment_state": prev["extra"]["scene"][0].cpu().numpy().astype(np.float32)}
+                   if "scene" in prev["extra"] else {}),
                 "action": (flat if label is None else _flat(label, u)).astype(np.float32),
                 "stage": np.array([self._labels[0]], dtype=np.int64),
                 "gear_offset": self._labels[1],

@@ -32,8 +32,9 @@ def _hand_to_peg() -> HandToPeg:
     return HandToPeg(GearSpec())
 
 
-def hand_to_peg(state: np.ndarray) -> np.ndarray:
-    """Where the left hand is over the peg, by both arms' forward kinematics, for joint states (N, 16)."""
+def hand_to_peg(state: np.ndarray, scene: np.ndarray | None = None) -> np.ndarray:
+    """Where the left hand is over the peg, by both arms' forward kinematics, for joint states (N, 16) (the scene
+    the arms know is the same in every episode)."""
     return _hand_to_peg()(state)
 
 

@@ -13,9 +13,10 @@ plane and within the hole's radius; it has no bound the other way, so a peg push
 
 The env is made by mani-skill itself (``gym.make``), not copied: this module reads its state, and one wrapper adds
 what the library reads of a task: ``extra.state`` (the arm's joints and the gripper's width, its
-`observation.state`), the strict success as ``info["success"]`` (ManiSkill's own beside it as
-``info["success_maniskill"]``), the stage, and a second start state (``reset(options={"start": "pre_insertion"})``:
-the peg in the hand in front of the hole, where the insertion begins).
+`observation.state`), ``extra.scene`` (the hole's pose and the peg's size, as the planner knows them), the strict
+success as ``info["success"]`` (ManiSkill's own beside it as ``info["success_maniskill"]``), the stage, and a second
+start state (``reset(options={"start": "pre_insertion"})``: the peg in the hand in front of the hole, where the
+insertion begins).
 """
 
 from __future__ import annotations
@@ -49,6 +50,8 @@ class ArmState(gym.Wrapper):
 
     - `extra.state`, (B, 8): the arm's 7 joint angles and the gripper's width (both fingers' positions summed), as the
       library's controllers and recordings read a task's joint state;
+    - `extra.scene`, (B, 9): the hole's pose in the arm's base frame (position, quaternion wxyz) and the peg's
+      half-length and half-width, what the planner knows of the scene (`observation.environment_state`);
     - `info["success"]`: the strict success (ManiSkill's is `info["success_maniskill"]`), and `info["stage"]`;
     - `reset(options={"start": "pre_insertion"})`: the scripted expert picks the peg up and carries it to the
       pre-insertion pose, unobserved (no camera renders), and the episode starts there, at step 0, with the carry's
@@ -77,7 +80,11 @@ class ArmState(gym.Wrapper):
             raise ValueError("the library reads PegInsertionSide-v1 with obs_mode 'state_dict' or 'rgb', not "
                              f"{self.env.unwrapped.obs_mode!r}")
         qpos = obs["agent"]["qpos"]
-        obs.setdefault("extra", {})["state"] = torch.cat([qpos[:, :7], qpos[:, 7:8] + qpos[:, 8:9]], dim=-1)
+        extra = obs.setdefault("extra", {})
+        extra["state"] = torch.cat([qpos[:, :7], qpos[:, 7:8] + qpos[:, 8:9]], dim=-1)
+        u = self.env.unwrapped
+        extra["scene"] = torch.cat([(u.agent.robot.pose.inv() * u.box_hole_pose).raw_pose, u.peg_half_sizes[:, :2]],
+                                   dim=-1)
         return obs
 
     def _info(self, info: dict) -> dict:

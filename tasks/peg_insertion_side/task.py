@@ -11,6 +11,7 @@ from policy_composer.tasks.base import TaskDescription
 from policy_composer.tasks.peg_insertion_side.env import ArmState, make_env, step_unobserved
 from policy_composer.tasks.peg_insertion_side.expert import PegInsertionSideExpert
 from policy_composer.tasks.peg_insertion_side.flags import predicates, stage_of
+from policy_composer.tasks.peg_insertion_side.kinematics import HAND_IN_HOLE, hand_in_hole, rule_out
 from policy_composer.tasks.peg_insertion_side.scene import PegScene, pose0
 from policy_composer.tasks.peg_insertion_side.spec import EPISODE_LIMIT, SPEC
 from policy_composer.tasks.peg_insertion_side.subtasks import INSERTIONS, SUBTASKS, TASK_SEQUENCE
@@ -90,6 +91,9 @@ TASK = TaskDescription(
     whereabouts=whereabouts,
     labels=labels,
     stage=stage,
+    extra_proprioception=HAND_IN_HOLE,
+    proprioception=hand_in_hole,
+    rule_out=rule_out,
     reset_starts={"insert": "pre_insertion"},
     expert_starts={"move": "move"},
     start_expert=PegInsertionSideExpert,

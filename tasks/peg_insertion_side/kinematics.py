@@ -1,0 +1,57 @@
+"""Where the robot knows its hand is against the hole, without a camera: the hand's pose by forward kinematics of its
+joints (`observation.state`), the hole's pose and the peg's size from what the planner knows of the scene
+(`observation.environment_state`), and where the peg's head is if the hand holds the peg as its grasp was planned. The
+predicate classifiers read it beside the cameras, as the gear's read where the hand is over its peg; where the peg
+really sits in the fingers is the cameras' to see."""
+
+from __future__ import annotations
+
+from functools import cache
+
+import numpy as np
+from transforms3d.quaternions import quat2mat
+
+from policy_composer.tasks.panda import PandaForwardKinematics
+from policy_composer.tasks.peg_insertion_side.scene import grasp_offset
+
+HAND_IN_HOLE = ("hand_in_hole_x", "hand_in_hole_y", "hand_in_hole_z",
+                "hole_axis_in_hand_x", "hole_axis_in_hand_y", "hole_axis_in_hand_z",
+                "planned_head_in_hole_x", "planned_head_in_hole_y", "planned_head_in_hole_z",
+                "planned_head_past_near_face", "fingers_wider_than_peg")
+# The fingers squeeze a held peg: in the recordings the gripper was 0.7-3.8 mm narrower than the peg whenever it held
+# it. Wider than the peg by more than this, the hand holds nothing (m).
+EMPTY_HAND_GAP = 0.002
+
+
+@cache
+def _forward_kinematics() -> PandaForwardKinematics:
+    return PandaForwardKinematics()
+
+
+def hand_in_hole(state: np.ndarray, scene: np.ndarray) -> np.ndarray:
+    """(N, 11) for joint states (N, 8) and scenes (N, 9, SCENE_NAMES): the TCP's position in the hole's frame (x along
+    the hole's axis into the box, m), the hole's axis in the hand's frame, the peg's head in the hole's frame as the
+    planned grasp holds it (its axis along the TCP's x, `grasp_offset` back from its centre, its head the end toward
+    the hole) and how far that head is past the box's near face (the box is as deep as the peg is long), and how much
+    wider the fingers are than the peg."""
+    state, scene = np.atleast_2d(state), np.atleast_2d(scene)
+    p, R = _forward_kinematics().tcp(state[:, :7])
+    out = np.empty((len(state), len(HAND_IN_HOLE)))
+    for i, (known, tcp, hand) in enumerate(zip(scene, p, R)):
+        hole_R, half_length = quat2mat(known[3:7] / np.linalg.norm(known[3:7])), known[7]
+        out[i, :3] = hole_R.T @ (tcp - known[:3])
+        out[i, 3:6] = hand.T @ hole_R[:, 0]
+        toward_hole = 1.0 if out[i, 3] >= 0 else -1.0
+        head = tcp + toward_hole * (grasp_offset(half_length) + half_length) * hand[:, 0]
+        out[i, 6:9] = hole_R.T @ (head - known[:3])
+        out[i, 9] = out[i, 6] + half_length
+    out[:, 10] = state[:, 7] - 2 * scene[:, 8]
+    return out
+
+
+def rule_out(p: dict[str, float], kinematics: np.ndarray) -> dict[str, float]:
+    """Fingers wider than the peg by more than EMPTY_HAND_GAP hold nothing: the peg is neither grasped nor at the
+    pre-insertion pose, whatever the images look like."""
+    if float(kinematics[HAND_IN_HOLE.index("fingers_wider_than_peg")]) > EMPTY_HAND_GAP:
+        p["peg_grasped"] = p["peg_at_hole"] = 0.0
+    return p
