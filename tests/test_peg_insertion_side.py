@@ -18,7 +18,7 @@ from policy_composer.policies.cnn.train import policy_state
 from policy_composer.policies.library import LibrarySources, build_library
 from policy_composer.tasks.base import PlanningError
 from policy_composer.tasks.peg_insertion_side.env import CAMERA_NAMES, PREDICATES, make_env, predicates, strict_success
-from policy_composer.tasks.peg_insertion_side.kinematics import hand_in_hole
+from policy_composer.tasks.peg_insertion_side.kinematics import EMPTY_HAND_GAP, HAND_IN_HOLE, hand_in_hole, rule_out
 from policy_composer.tasks.peg_insertion_side.spec import SCENE_NAMES, STATE_NAMES
 from policy_composer.tasks.peg_insertion_side.task import labels
 
@@ -215,3 +215,17 @@ def test_the_peg_cnn_policy_reads_where_its_hand_is_against_the_hole(env):
     assert np.allclose(read[0, 1:].numpy(), hand_in_hole(state.numpy(), scene.numpy())[0], atol=1e-6)
     with pytest.raises(ValueError, match="observation.environment_state"):
         policy_state(state, config)
+
+
+def test_fingers_wider_than_the_peg_hold_nothing():
+    """The kinematic rule beside the classifiers: with the fingers wider than the peg the hand holds nothing, so the
+    peg is neither grasped, at the pre-insertion pose nor in the hole, whatever the classifiers say (they said
+    "seated" at the reset of four held-out seeds, where the hand, open, was where the planned grasp would seat it);
+    with the fingers squeezing it, their word stands."""
+    said = {"peg_grasped": 0.9, "peg_at_hole": 0.8, "peg_inserted": 0.97, "peg_seated": 0.97}
+    gap = list(HAND_IN_HOLE).index("fingers_wider_than_peg")
+    kinematics = np.zeros(len(HAND_IN_HOLE))
+    kinematics[gap] = EMPTY_HAND_GAP + 0.001
+    assert rule_out(dict(said), kinematics) == dict.fromkeys(said, 0.0)
+    kinematics[gap] = -0.002
+    assert rule_out(dict(said), kinematics) == said
