@@ -101,9 +101,9 @@ class LeRobotPolicyController(LearnedController):
             self.preprocess, self.postprocess = make_pre_post_processors(
                 cfg, pretrained_path=str(path), preprocessor_overrides={"device_processor": {"device": "cpu"}})
         self.instruction = instruction or task.spec.instruction
-        self.scene = "observation.environment_state" in cfg.input_features
+        self.reads_scene = "observation.environment_state" in cfg.input_features
         self.obs_keys = (tuple(f"sensor_data.{c}.rgb" for c, _ in self.images.values()) + ("extra.state",)
-                         + (("extra.scene",) if self.scene else ()))
+                         + (("extra.scene",) if self.reads_scene else ()))
 
     def reset(self, obs, seed=None):
         super().reset(obs, seed)
@@ -114,7 +114,7 @@ class LeRobotPolicyController(LearnedController):
         batch = {key: to_model_image(obs["sensor_data"][camera]["rgb"][:1].cpu(), size)
                  for key, (camera, size) in self.images.items()}
         batch["observation.state"] = obs["extra"]["state"][:1].cpu().float()
-        if self.scene:
+        if self.reads_scene:
             batch["observation.environment_state"] = obs["extra"]["scene"][:1].cpu().float()
         batch["task"] = [self.instruction]
         action = self.postprocess(self.policy.select_action(self.preprocess(batch)))
