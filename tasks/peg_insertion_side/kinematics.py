@@ -29,7 +29,7 @@ def _forward_kinematics() -> PandaForwardKinematics:
 
 
 def hand_in_hole(state: np.ndarray, scene: np.ndarray) -> np.ndarray:
-    """(N, 11) for joint states (N, 8) and scenes (N, 9, SCENE_NAMES): the TCP's position in the hole's frame (x along
+    """(N, 11) for joint states (N, 8) and scenes (N, 9: SCENE_NAMES): the TCP's position in the hole's frame (x along
     the hole's axis into the box, m), the hole's axis in the hand's frame, the peg's head in the hole's frame as the
     planned grasp holds it (its axis along the TCP's x, `grasp_offset` back from its centre, its head the end toward
     the hole) and how far that head is past the box's near face (the box is as deep as the peg is long), and how much

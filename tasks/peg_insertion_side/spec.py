@@ -108,7 +108,7 @@ SPEC = TaskSpec(
     dagger_rounds=0,
     episode_steps=EPISODE_LIMIT,
     scene_names=SCENE_NAMES,
-    # The pre-insertion pose and the seat are bounds of a few mm on the peg's head: at the quick job's 6 epochs the
-    # classifiers missed 29% of the held-out frames at the pose, at 30 epochs 14% (docs/task.md).
+    # On the quick job's recordings, at its 6 epochs the classifier of the pre-insertion pose missed 29% of the held-out
+    # frames there, at 30 epochs 14% (docs/task.md).
     predicate_epoch_factor=5,
 )
