@@ -103,7 +103,7 @@ class Makings:
 
     @classmethod
     def of(cls, p: Profile, task: str) -> Makings:
-        spec = get_spec(task)
+        spec, description = get_spec(task), get_task(task)
         insertion = spec.demonstrations["insert"][0]  # its recipe comes first
         demos = tuple((load_recipe(name), p.insertion_demos, "the insertion demonstrations") if name == insertion
                       else (load_recipe(name), p.transport_demos, "the pick-up and carry demonstrations")
@@ -127,8 +127,8 @@ class Makings:
             predicates=PredicateConfig(task=task, epochs=p.predicate_epochs * spec.predicate_epoch_factor,
                                        image_size=min(PredicateConfig.image_size, p.image_size)),
             compose=compose, sensed=replace(compose, senses="learned"),
-            insertion=next(iter(get_task(task).insertions)), table_kinds=tuple(k.label for k in kinds().values()),
-            env=env_key(task, p.resolution), kinematics=get_task(task).extra_proprioception,
+            insertion=next(iter(description.insertions)), table_kinds=tuple(k.label for k in kinds().values()),
+            env=env_key(task, p.resolution), kinematics=description.extra_proprioception,
             library={"library_revision": LIBRARY_REVISION, "controllers": all_names(LibrarySources(task=task))})
 
     def recording(self, recipe: Recipe, episodes: int) -> dict:
