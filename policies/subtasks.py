@@ -13,7 +13,8 @@ from policy_composer.policies.mp.planning import VELOCITY_LIMIT, SceneCollisionM
 from policy_composer.tasks.base import Percept, PlanningError, Subtask, Waypoint, np0
 from policy_composer.tasks.panda import line_to
 
-CONFIRM_STEPS = 3  # a learned controller stops once its subtask has been sensed done this many steps in a row
+CONFIRM_STEPS = 3  # a learned controller (or a planned one whose subtask says so) stops once its subtask has been
+# sensed done this many steps in a row
 # A probing descent is blocked when, over the last STALL_STEPS control steps, the TCP (joint positions and forward
 # kinematics only) went down less than a third of the at least STALL_DESCENT its targets went down.
 STALL_STEPS, STALL_DESCENT = 2, 0.004
@@ -56,7 +57,7 @@ class SubtaskController(ScriptedController):
             rng = np.random.default_rng(seed)
             offset = rng.uniform(-self.max_grasp_offset, self.max_grasp_offset)
             self.grasp_offset = float(offset if self.fixed_grasp_offset is None else self.fixed_grasp_offset)
-        self.tries, self.trimmed, self.replan_failed = 1, None, ""
+        self.tries, self.trimmed, self.replan_failed, self._confirmed = 1, None, "", 0
         return self._connect(obs, self.subtask.waypoints(self.ik, self.scene, self.q9(obs), self.grasp_offset,
                                                          self.senses(obs)), seed)
 
@@ -91,6 +92,10 @@ class SubtaskController(ScriptedController):
         self._k, self._t = 0, 0
 
     def next_command(self, obs):
+        if self.subtask.stops_when_sensed:
+            self._confirmed = self._confirmed + 1 if self.subtask.succeeded(self.senses(obs))[0] else 0
+            if self._confirmed >= CONFIRM_STEPS:
+                return None
         try:
             if self.guesses and self.blocked(obs):  # back up and line up for the next guess
                 self.grasp_offset, self.tries = self.guesses.pop(0), self.tries + 1

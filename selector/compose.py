@@ -30,6 +30,7 @@ class Activation:
     outcome: str = "running"
     reason: str = ""
     subtask: str = ""  # the part of the task the controller serves ("" for one without a subtask)
+    part: str = ""  # where the task's part was when it ended, from the simulator's truth: the log's, never a sense
 
 
 @dataclass
@@ -42,7 +43,7 @@ class ComposedEpisode:
     decisions: list[dict] = field(default_factory=list)  # step, choice and every candidate's score
     reached: int = 0  # the furthest stage the task reached (1 picked, 2 at the pre-insertion pose, 3 seated)
     ended: str = ""  # "task done", "nothing applicable" or "out of steps"
-    gear: str = ""  # where the gear was at the end (see `gear_whereabouts`)
+    part: str = ""  # where the task's part was at the end (its `whereabouts`)
 
     @property
     def sequence(self) -> list[str]:
@@ -54,7 +55,8 @@ class ComposedEpisode:
     @classmethod
     def from_dict(cls, d: dict) -> ComposedEpisode:
         return cls(d["seed"], d["success"], d["steps"], d["knocked_out"], [Activation(**a) for a in d["activations"]],
-                   d["decisions"], d.get("reached", 0), d.get("ended", ""), d.get("gear", ""))
+                   d["decisions"], d.get("reached", 0), d.get("ended", ""),
+                   d.get("part", d.get("gear", "")))
 
 
 class Eligibility:
@@ -135,6 +137,7 @@ def compose_episode(env, library: dict[str, Controller], world: GearWorldModel, 
                 return chosen
             except PlanningError as e:
                 result.activations[-1].outcome, result.activations[-1].reason = "failed", f"no plan: {e}"
+                result.activations[-1].part = task.whereabouts(u, info)
                 eligibility.record(result.activations[-1])
 
     for step in range(config.max_steps):
@@ -143,6 +146,7 @@ def compose_episode(env, library: dict[str, Controller], world: GearWorldModel, 
             if current is not None:
                 current.outcome = running.outcome.value if running.done(obs) else "preempted"
                 current.reason = getattr(running, "reason", "")
+                current.part = task.whereabouts(u, info)
                 eligibility.record(current)
             running = choose(step)
             if running is None:
@@ -155,7 +159,7 @@ def compose_episode(env, library: dict[str, Controller], world: GearWorldModel, 
         if on_frame is not None:
             on_frame(obs, running.name, world.score_observation(obs))
     # The scorer's verdict, from the info the last step (or the reset) gave.
-    result.success, result.gear = bool(info["success"][0]), task.whereabouts(u, info)
+    result.success, result.part = bool(info["success"][0]), task.whereabouts(u, info)
     if running is None:
         result.ended = "task done" if result.success else "nothing applicable"
     else:
@@ -163,5 +167,6 @@ def compose_episode(env, library: dict[str, Controller], world: GearWorldModel, 
         if current.outcome == "running":
             current.outcome = running.outcome.value if running.done(obs) else "cut off at max_steps"
             current.reason = getattr(running, "reason", "")
+        current.part = result.part
     result.knocked_out = bool(getattr(u, "knocked_out", False))
     return result

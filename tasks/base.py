@@ -108,6 +108,9 @@ class Subtask:
     initiation = ""
     releases = False  # whether it ends with the part let go (else: held, as the next subtask needs it)
     holds_part = False  # whether the part is in the hand on the way (the planner attaches it)
+    # Whether a planned controller stops once the subtask is sensed achieved (CONFIRM_STEPS in a row), not at the
+    # end of its plan: where the plan goes on past what the senses ever saw achieved.
+    stops_when_sensed = False
     # Offsets (m) to assume in turn, each time a probing waypoint is blocked; () draws the pick-up's perception error.
     search: tuple[float, ...] = ()
 

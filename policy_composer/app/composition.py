@@ -245,7 +245,7 @@ def progressive(completed: list[int]) -> str:
 
 def failure_causes(episodes: list[ComposedEpisode]) -> list[tuple[tuple[str, str, str], list[int]]]:
     """The failed episodes grouped by cause: (the last activation and why it ended, how the episode ended, where the
-    gear was), with their seeds, commonest first."""
+    part was), with their seeds, commonest first."""
     causes: dict[tuple[str, str, str], list[int]] = {}
     for e in episodes:
         if e.success:
@@ -253,7 +253,7 @@ def failure_causes(episodes: list[ComposedEpisode]) -> list[tuple[tuple[str, str
         last = e.activations[-1] if e.activations else None
         why = last.reason.split(":")[0].split(" (")[0].strip() if last else ""
         what = f"{last.controller} {last.outcome}" + (f": {why}" if why else "") if last else "no controller started"
-        causes.setdefault((what, e.ended or "-", e.gear or "-"), []).append(e.seed)
+        causes.setdefault((what, e.ended or "-", e.part or "-"), []).append(e.seed)
     return sorted(causes.items(), key=lambda c: -len(c[1]))
 
 

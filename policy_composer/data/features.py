@@ -19,7 +19,7 @@ def image_key(camera: str) -> str:
 
 # Bump when dataset_features changes: the main job's recording stages key on it, so no recording without a column
 # the models need is reused.
-FEATURES_REVISION = 4
+FEATURES_REVISION = 5
 
 
 def dataset_features(spec: TaskSpec, cameras: tuple[str, ...] | None = None, resolution: int = 128) -> dict[str, dict]:

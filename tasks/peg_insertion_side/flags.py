@@ -41,8 +41,9 @@ def predicates(env) -> dict[str, torch.Tensor]:
     hole_axis = u.box_hole_pose.to_transformation_matrix()[:, :3, 0]
     aligned = (peg_axis * hole_axis).sum(-1) > torch.cos(torch.deg2rad(torch.tensor(ALIGN_TOL_DEG)))
     on_axis = torch.linalg.norm(head[:, 1:], dim=-1) < radius
-    near_face = -box_half_depth(u)
-    in_front = (head[:, 0] < near_face) & (head[:, 0] > near_face - PRE_INSERTION_DISTANCE)
+    # At the hole: in front of the box's near face, or part-way in short of ManiSkill's bound (an insertion that
+    # stopped there is the insertion's to go on with, not the carry's).
+    at_hole = ~inserted & (head[:, 0] > -box_half_depth(u) - PRE_INSERTION_DISTANCE)
     grasped = u.agent.is_grasping(u.peg)
-    return {"peg_grasped": grasped, "peg_at_hole": grasped & aligned & on_axis & in_front,
+    return {"peg_grasped": grasped, "peg_at_hole": grasped & aligned & on_axis & at_hole,
             "peg_inserted": inserted, "peg_seated": _not_past(u, inserted, head)}

@@ -26,7 +26,8 @@ EXPERT_PHASES = ("approach", "descend", "close", "lift", "move", "align", "inser
 # What the controllers' initiation sets and terminations are made of (labels of the recordings).
 PREDICATES = {
     "peg_grasped": "the peg is in the gripper",
-    "peg_at_hole": "the peg is grasped, its axis on the hole's and its head in front of the box (pre-insertion pose)",
+    "peg_at_hole": ("the peg is grasped, its axis on the hole's and its head in front of the box (the pre-insertion "
+                    "pose) or part-way into the hole, not yet inserted"),
     "peg_inserted": "the peg's head is in the hole (ManiSkill's success)",
     "peg_seated": "the peg's head is in the hole and not past the box's far face (the strict success)",
 }

@@ -59,7 +59,7 @@ def peg_target_tcp(scene, head_x: float, lift: float = 0.0) -> sapien.Pose:
 
 class Move(Subtask):
     name = "move"
-    initiation = "peg in the hand, not yet at the pre-insertion pose nor in the hole"
+    initiation = "peg in the hand, not yet at the hole nor in it"
     holds_part = True
 
     def can_start(self, percept):
@@ -83,8 +83,11 @@ class Insert(Subtask):
     Where the peg sits in the fingers is the plan's, not seen: a peg that slid or pivoted there meets the box's face."""
 
     name = "insert"
-    initiation = "peg in the hand at the pre-insertion pose, or part-way in and not seated"
+    initiation = "peg in the hand at the hole (in front of it or part-way in), or in it and not seated"
     holds_part = True
+    # The push aims past where the head seats whatever the grasp's error; the demonstrations stop where it seats, so
+    # the classifiers never saw a peg pushed deeper.
+    stops_when_sensed = True
 
     def can_start(self, percept):
         return percept["peg_at_hole"] or (percept["peg_grasped"] and percept["peg_inserted"]

@@ -67,7 +67,7 @@ def labels(env, info: dict | None = None) -> tuple[int, np.ndarray, np.ndarray]:
 def whereabouts(env, info: dict | None = None) -> str:
     flags = predicates(env)
     for name, words in (("peg_seated", "in the hole"), ("peg_inserted", "pushed past the box's far face"),
-                        ("peg_at_hole", "in the hand in front of the hole"), ("peg_grasped", "in the hand")):
+                        ("peg_at_hole", "in the hand at the hole"), ("peg_grasped", "in the hand")):
         if bool(flags[name][0]):
             return words
     return "out of the hand"
