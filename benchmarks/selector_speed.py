@@ -27,7 +27,7 @@ from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConf
 from policy_composer.selector.dynamics import LatentDynamics
 from policy_composer.selector.goal_score import GoalScoreModel, LatentGoalScoreModel
 from policy_composer.selector.vae import VAE
-from policy_composer.selector.world_model import GearWorldModel
+from policy_composer.selector.world_model import WorldModel
 
 
 def timed(fn, repeat: int) -> float:
@@ -38,7 +38,7 @@ def timed(fn, repeat: int) -> float:
     return (time.perf_counter() - t0) / repeat
 
 
-def scoring_flops(world: GearWorldModel, futures: torch.Tensor) -> int:
+def scoring_flops(world: WorldModel, futures: torch.Tensor) -> int:
     """Floating-point operations of decoding and scoring `futures`, as torch counts them."""
     with torch.no_grad(), FlopCounterMode(display=False) as counter:
         world.score(futures)
@@ -82,15 +82,15 @@ def main() -> None:
     vae = VAE(vae_config).eval()
     names = all_names()
     dynamics = {n: LatentDynamics(DynamicsConfig(controller=n)).eval() for n in names}
-    world = GearWorldModel(vae, dynamics, GoalScoreModel(goal_config).eval())
+    world = WorldModel(vae, dynamics, GoalScoreModel(goal_config).eval())
     latent_goal = LatentGoalScoreModel(LatentGoalScoreConfig(latent_dim=vae_config.latent_dim)).eval()
-    latent_world = GearWorldModel(vae, dynamics, latent_goal)
+    latent_world = WorldModel(vae, dynamics, latent_goal)
     obs = {"sensor_data": {world.camera: {"rgb": torch.randint(0, 255, (1, 128, 128, 3), dtype=torch.uint8)}}}
     encode = timed(lambda: world.encode(obs), args.decisions)
     W, K = len(names), 16
     print(f"reference: encode one 128x128 image with the VAE: {encode * 1000:.1f} ms")
 
-    def decision(batched: bool, applicable: int = W, states: int = 1, model: GearWorldModel = world) -> float:
+    def decision(batched: bool, applicable: int = W, states: int = 1, model: WorldModel = world) -> float:
         selector = model.selector(horizon=10, samples=K, seed=0, batched=batched)
         mask = torch.zeros(states, W, dtype=torch.bool)
         mask[:, :applicable] = True

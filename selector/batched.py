@@ -1,4 +1,4 @@
-"""The selector over the gear task's latent dynamics models, in one pass per decision.
+"""The selector over a task's latent dynamics models, in one pass per decision.
 
 Every controller's K rollouts step together through `StackedDynamics`, and the futures of every applicable
 controller decode and score as one batch. The random draws of a decision are fixed per controller, state, sample

@@ -1,4 +1,4 @@
-"""Composition inside ManiSkill rollouts: the selector runs the library on GearAssembly-v1 with no fixed sequence.
+"""Composition inside ManiSkill rollouts: the selector runs a task's library with no fixed sequence.
 
 At each decision it scores every controller whose initiation set holds the current state, runs the best one,
 and decides again when it terminates (succeeded, failed, or stopped for safety) and, optionally, every
@@ -18,7 +18,7 @@ import torch
 from policy_composer.policies.base import Controller
 from policy_composer.policies.mp.planning import PlanningError
 from policy_composer.selector.configuration import ComposeConfig
-from policy_composer.selector.world_model import GearWorldModel
+from policy_composer.selector.world_model import WorldModel
 from policy_composer.tasks.registry import task_of
 
 
@@ -63,12 +63,12 @@ class Eligibility:
     """Which controllers may be chosen besides their initiation sets, from what the episode has seen so far.
 
     A controller that has just succeeded sits out the next decision: its subtask is done, and where the next
-    subtask's initiation set and its own overlap (a gear at the edge of the pre-insertion pose) re-running it would
+    subtask's initiation set and its own overlap (a part at the edge of the pre-insertion pose) re-running it would
     only repeat itself. A controller that has failed `max_failures` times (default once) since the last success is
     dropped until another controller succeeds: its dynamics model keeps predicting a success the world does not
     give, and a failed insertion backs off to the state it started from, where the same open-loop controller would
     fail the same way; without this the selector retries it until the episode runs out. A success that only
-    brings the gear back to where it failed (a move after a failed insertion) would let it fail again and again,
+    brings the part back to where it failed (a move after a failed insertion) would let it fail again and again,
     so `episode_failures` failures in the episode drop it for good.
     """
 
@@ -105,7 +105,7 @@ def sensed(library: dict[str, Controller], obs) -> dict:
 FrameHook = Callable[[dict, str, float], None]  # (observation, running controller, goal score now)
 
 
-def compose_episode(env, library: dict[str, Controller], world: GearWorldModel, config: ComposeConfig, seed: int,
+def compose_episode(env, library: dict[str, Controller], world: WorldModel, config: ComposeConfig, seed: int,
                     on_frame: FrameHook | None = None) -> ComposedEpisode:
     """One composed episode from `env.reset(seed)`. Only controllers with a dynamics model are candidates."""
     names = [n for n in world.dynamics if n in library]

@@ -1,4 +1,4 @@
-"""The selector's learned world of the gear task: the VAE's latent state, one dynamics model per controller,
+"""The selector's learned world of a task: the VAE's latent state, one dynamics model per controller,
 and the goal score of decoded latents. Trained from recorded datasets, saved as one folder:
 
     ROOT/vae/                  the VAE (config.json + model.safetensors)
@@ -45,7 +45,7 @@ def check_trained_together(vae: Path, made_with: dict[Path, dict[str, str]]) -> 
             raise CheckpointError(f"{part} was trained with another VAE than the one in {vae}; {again}")
 
 
-class GearWorldModel:
+class WorldModel:
     """Implements the selector's GoalScore on latents, and turns observations into latents."""
 
     def __init__(self, vae: VAE, dynamics: dict[str, LatentDynamics], goal: GoalScoreModel | LatentGoalScoreModel,
@@ -72,7 +72,7 @@ class GearWorldModel:
 
     @classmethod
     def load(cls, root: str | Path, controllers: list[str] | None = None, goal_score: str = "image",
-             predicates: bool = False) -> GearWorldModel:
+             predicates: bool = False) -> WorldModel:
         """Load the VAE, its goal score (`goal_score` "image": the one of its camera; "latent": the one of its
         latents), the dynamics models of `controllers` (default: all) and, with `predicates`, the predicate
         classifiers."""

@@ -14,7 +14,7 @@ from policy_composer.app.adding import add_lerobot_controller
 from policy_composer.policies.library import LeRobotSource, LibraryError
 from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, VAEConfig
 from policy_composer.selector.train import train_goal_scores, train_world_model
-from policy_composer.selector.world_model import GearWorldModel
+from policy_composer.selector.world_model import WorldModel
 
 
 @pytest.mark.parametrize("policy", ["act", "cnn_mdn"])
@@ -43,7 +43,7 @@ def test_a_lerobot_checkpoint_joins_the_library(policy, controller_rollouts, ful
     sidecar = json.loads((rollouts / "meta" / "policy_composer.json").read_text())
     assert sidecar["controllers"] == ["mp_pick", "mp_insert", name]  # the library's rollouts are kept
     assert [e["controller_name"] for e in sidecar["episodes"]].count(name) == 1
-    world = GearWorldModel.load(models)
+    world = WorldModel.load(models)
     assert set(world.dynamics) == {"mp_pick", "mp_insert", name}
     assert world.dynamics[name].config.frame_skip == 3  # one look-ahead for every controller
     decision = world.selector(horizon=2, samples=2, seed=0).decide(torch.zeros(1, 8))

@@ -53,7 +53,7 @@ from policy_composer.selector.predicates import (
 )
 from policy_composer.selector.train import posteriors, train_goal_scores, train_predicate_models, train_world_model
 from policy_composer.selector.vae import train_vae
-from policy_composer.selector.world_model import GearWorldModel
+from policy_composer.selector.world_model import WorldModel
 from policy_composer.tasks.gear_assembly.expert import GearAssemblyExpert
 from policy_composer.tasks.gear_assembly.spec import PREDICATES
 from policy_composer.tasks.gear_assembly.subtasks import SUBTASKS
@@ -91,7 +91,7 @@ def test_models_learn_and_the_goal_score_rises_along_its_demos(world, full_task_
     for model in ("vae", "dynamics/mp_pick", "dynamics/mp_insert", "goal_score/left_forearm", "goal_score/latent"):
         losses = json.loads((root / model / "train_log.json").read_text())["losses"]
         assert losses[-1] < losses[0], (model, losses)
-    world_model = GearWorldModel.load(root)
+    world_model = WorldModel.load(root)
     assert set(world_model.dynamics) == {"mp_pick", "mp_insert"}
     assert world_model.camera == "left_forearm"  # the selector's camera sees the gear in the hand
     demos = load_frames(full_task_demos, ("left_forearm",), SIZE, episodes=[0, 1], progress=False)
@@ -113,7 +113,7 @@ def test_each_dynamics_model_predicts_its_own_controller_and_held_out_transition
     rows, or on another's, would not be), and a model trained on the demonstrations' training episodes predicts the
     held-out one better than no change. The bounds leave room for another CPU's arithmetic (measured: 0.45 and 0.70
     of no change; 11x and 4x; 0.75)."""
-    model = GearWorldModel.load(world[0])
+    model = WorldModel.load(world[0])
     camera, vae = model.camera, model.vae
     frames = load_frames(controller_rollouts, (camera,), SIZE, required={"controller": (1,)}, progress=False)
     names = json.loads((controller_rollouts / "meta" / "policy_composer.json").read_text())["controllers"]
@@ -143,12 +143,12 @@ def test_mismatched_checkpoints_are_refused(world, tmp_path):
     with pytest.raises(CheckpointError, match="predicts 8-D latents, but the VAE's are 16-D"):
         load_dynamics(root / "dynamics" / "mp_pick", latent_dim=16)
     with pytest.raises(CheckpointError, match="no dynamics model for \\['dmp_move'\\]"):
-        GearWorldModel.load(root, controllers=["mp_pick", "dmp_move"])
-    model = GearWorldModel.load(root)
+        WorldModel.load(root, controllers=["mp_pick", "dmp_move"])
+    model = WorldModel.load(root)
     other = replace(model.goal.config, camera="head")
     model.goal.config = other
     with pytest.raises(CheckpointError, match="must read the VAE's camera"):
-        GearWorldModel(model.vae, model.dynamics, model.goal)
+        WorldModel(model.vae, model.dynamics, model.goal)
     with pytest.raises(CheckpointError, match="holds a VAEConfig checkpoint, not a dynamics model"):
         load_dynamics(root / "vae")
 
@@ -160,7 +160,7 @@ def test_parts_not_trained_together_are_refused(world, controller_rollouts, tmp_
     dynamics = root / "dynamics" / "mp_insert" / "config.json"
     config = json.loads(dynamics.read_text())
     dynamics.write_text(json.dumps({**config, "trained_with": {**config["trained_with"], "controller": "aaaa"}}))
-    model = GearWorldModel.load(root)
+    model = WorldModel.load(root)
     model.check_controllers({"mp_insert": "aaaa", "cnn_insert": "cccc"})  # its own model; one it has no dynamics of
     for other in ({"mp_insert": "bbbb"}, {}):  # another model; none (as the library gives a controller without one)
         with pytest.raises(CheckpointError, match="the mp_insert dynamics model was trained on rollouts of another"):
@@ -168,10 +168,10 @@ def test_parts_not_trained_together_are_refused(world, controller_rollouts, tmp_
     images = load_frames(controller_rollouts, ("head",), SIZE)[image_key("head")]
     train_vae(images, replace(model.vae.config, epochs=1, seed=1), root / "vae", progress=False)
     with pytest.raises(CheckpointError, match="was trained with another VAE than the one in"):
-        GearWorldModel.load(root)
+        WorldModel.load(root)
     dynamics.write_text(json.dumps({k: v for k, v in config.items() if k != "trained_with"}))  # an older config
     with pytest.raises(CheckpointError, match="mp_insert/config.json does not name the VAE it was trained with"):
-        GearWorldModel.load(root)
+        WorldModel.load(root)
 
 
 def test_a_world_model_training_cut_short_goes_on_where_it_stopped(world, controller_rollouts, full_task_demos,
@@ -190,7 +190,7 @@ def test_a_world_model_training_cut_short_goes_on_where_it_stopped(world, contro
     assert tree_digest(root / "goal_score/left_forearm") != kept["goal_score/left_forearm"]  # another config
     assert (root / "dynamics/mp_insert/model.safetensors").is_file() and set(timings) == {
         "goal score head", "goal score left_forearm", "goal score latent"}
-    GearWorldModel.load(root)  # all trained together
+    WorldModel.load(root)  # all trained together
 
 
 def test_a_checkpoint_is_replaced_whole_or_not_at_all(world, tmp_path):
@@ -309,7 +309,7 @@ def test_a_composed_episode_runs_end_to_end(world):
     """The selector's first choice is explained by its scores, the frames carry the goal score, and an episode depends
     on its seed only."""
     root, _ = world
-    model = GearWorldModel.load(root)
+    model = WorldModel.load(root)
     env = gym.make("GearAssembly-v1", obs_mode="rgb", cameras=(model.camera,), camera_width=SIZE, camera_height=SIZE)
     library = build_library(env, ["mp_pick", "mp_insert"], LibrarySources(max_grasp_offset=0.0))
     frames = []
@@ -329,8 +329,11 @@ def test_a_composed_episode_runs_end_to_end(world):
     assert len(frames) == result.steps and all(0.0 <= s <= 1.0 for _, s in frames)
     # After the pick (gear lifted, not at the peg) neither controller may start: the episode stops there.
     assert result.sequence == ["mp_pick"] and not result.success
-    assert (result.reached, result.ended, result.gear) == (1, "nothing applicable", "in the hand")
+    assert (result.reached, result.ended, result.part) == (1, "nothing applicable", "in the hand")
+    assert result.activations[0].part == "in the hand"  # where the pick left the gear, for reading the log
     assert ComposedEpisode.from_dict(json.loads(json.dumps(result.to_dict()))) == result
+    older = {k: v for k, v in result.to_dict().items() if k != "part"} | {"gear": "in the hand"}  # before `part`
+    assert ComposedEpisode.from_dict(older).part == "in the hand"
 
 
 class TruthRead(AssertionError):
@@ -382,7 +385,7 @@ class Seal:
                 self.depth = depth
         return run
 
-    def seal(self, library: dict, world: GearWorldModel) -> None:
+    def seal(self, library: dict, world: WorldModel) -> None:
         for controller in library.values():
             for name in ("can_start", "start", "act", "done"):
                 setattr(controller, name, self.sealed(getattr(controller, name)))
@@ -405,7 +408,7 @@ def test_a_composed_episode_with_learned_senses_reads_no_truth(world):
     """Controllers and the selector read only what a robot senses (cameras, joints, the hands' kinematics) while a
     composed episode runs: the env's truth raises under them. The same library on the oracle's senses reads it at once,
     so the guard does catch a read."""
-    model = GearWorldModel.load(world[0], predicates=True)
+    model = WorldModel.load(world[0], predicates=True)
     env = gym.make("GearAssembly-v1", obs_mode="rgb", cameras=model.cameras("learned"), camera_width=SIZE,
                    camera_height=SIZE)
     seal = Seal(env)
@@ -460,7 +463,7 @@ class Toward:
 def test_the_controller_the_selector_chooses_is_the_one_that_runs(world, full_task_demos):
     """Two controllers that may both start, one predicted to lead where a demonstration ends and one to where it
     began: the one predicted to score higher runs, whichever of the two is listed first."""
-    model = GearWorldModel.load(world[0])
+    model = WorldModel.load(world[0])
     demo = load_frames(full_task_demos, (model.camera,), SIZE, [0], progress=False)[image_key(model.camera)]
     began, ended = model.vae.latents(demo[[0, -1]])
     assert float(model.score(ended[None])[0]) > float(model.score(began[None])[0]) + 0.2  # the two are told apart
@@ -517,7 +520,7 @@ def test_a_run_killed_mid_episode_line_keeps_its_finished_episodes(tmp_path):
 def test_a_batched_decision_scores_as_one_controller_at_a_time(world, goal_score, full_task_demos):
     """The selector rolls out and scores the whole library in one pass; the scores are those of rolling out and
     scoring one controller at a time with the same random draws, and the folded decoder decodes as the VAE."""
-    model = GearWorldModel.load(world[0], goal_score=goal_score)
+    model = WorldModel.load(world[0], goal_score=goal_score)
     latents = torch.randn(20, model.vae.config.latent_dim, generator=torch.Generator().manual_seed(0))
     assert torch.allclose(model.decoder(latents), model.vae.decode(latents), atol=1e-5)
     demo = load_frames(full_task_demos, (model.camera,), SIZE, [0], progress=False)[image_key(model.camera)]
@@ -547,7 +550,7 @@ def test_the_latent_goal_score_tracks_progress_without_decoding(world, full_task
     """The goal score of the VAE's latents rises along its demonstrations, and a decision with it rolls out the same
     futures as with the image goal score but never decodes them."""
     root, _ = world
-    image, latent = GearWorldModel.load(root), GearWorldModel.load(root, goal_score="latent")
+    image, latent = WorldModel.load(root), WorldModel.load(root, goal_score="latent")
     assert latent.latent_goal and not image.latent_goal
     demos = load_frames(full_task_demos, ("left_forearm",), SIZE, episodes=[0, 1], progress=False)
     means, _ = posteriors(latent.vae, demos[image_key("left_forearm")])
@@ -564,14 +567,14 @@ def test_the_latent_goal_score_tracks_progress_without_decoding(world, full_task
     assert torch.allclose(by_latent.predicted, by_image.predicted, atol=1e-5)
     assert not torch.allclose(by_latent.scores, by_image.scores)  # scored by another model
     with pytest.raises(CheckpointError, match="reads 16-D latents, but the VAE's are 8-D"):
-        GearWorldModel(latent.vae, latent.dynamics, LatentGoalScoreModel(LatentGoalScoreConfig(latent_dim=16)))
+        WorldModel(latent.vae, latent.dynamics, LatentGoalScoreModel(LatentGoalScoreConfig(latent_dim=16)))
     with pytest.raises(ValueError, match="goal_score must be one of image, latent, not 'pixels'"):
-        GearWorldModel.load(root, goal_score="pixels")
+        WorldModel.load(root, goal_score="pixels")
     older = Path(shutil.copytree(root, tmp_path / "world"))  # trained before there was a latent goal score
     shutil.rmtree(older / "goal_score" / "latent")
     with pytest.raises(CheckpointError, match="no latent goal score checkpoint in .*train one with `policy-composer "
                                               "train goal-score`"):
-        GearWorldModel.load(older, goal_score="latent")
+        WorldModel.load(older, goal_score="latent")
 
 
 def test_poisoned_weights_are_refused_before_anything_runs(world, tmp_path):
@@ -586,7 +589,7 @@ def test_poisoned_weights_are_refused_before_anything_runs(world, tmp_path):
         tensors[name].view(-1)[0] = value
         save_file(tensors, str(weights))
         with pytest.raises(CheckpointError, match=f"{weights} holds values that are not finite .*{name}"):
-            GearWorldModel.load(root)
+            WorldModel.load(root)
 
 
 def test_the_selector_never_chooses_a_controller_whose_score_is_not_finite():

@@ -27,7 +27,7 @@ from policy_composer.data.verify import video_frames
 from policy_composer.policies.library import build_library, cameras_needed, check_models, model_ids
 from policy_composer.selector.compose import ComposedEpisode, compose_episode
 from policy_composer.selector.configuration import ComposeConfig
-from policy_composer.selector.world_model import GearWorldModel
+from policy_composer.selector.world_model import WorldModel
 from policy_composer.tasks.registry import DEFAULT_TASK
 
 PAPER_COMPOSED = "10/10"  # paper Table I: MP + CNN composed by the selector, full task
@@ -98,7 +98,7 @@ class Composer:
                  clearance_mm: float = 2.0, knock_out_step: int | None = None, out: Path | None = None,
                  video_seeds: tuple[int, ...] = (), world=None, goal_score: str = "image"):
         # given: loaded in this process
-        self.world = world if world is not None else GearWorldModel.load(models, goal_score=goal_score,
+        self.world = world if world is not None else WorldModel.load(models, goal_score=goal_score,
                                                                          predicates=config.senses == "learned")
         names = list(self.world.dynamics)
         cameras = tuple(dict.fromkeys((*self.world.cameras(config.senses), *cameras_needed(names, sources))))
@@ -125,7 +125,7 @@ def compose_library(models: str | Path, sources, config: ComposeConfig, seeds: l
                     resolution: int = 128, clearance_mm: float = 2.0, knock_out_step: int | None = None,
                     resume: bool = False, progress: bool = True, workers: int = 1,
                     goal_score: str = "image") -> list[ComposedEpisode]:
-    """Load the world model in `models` with its `goal_score` ("image" or "latent", see GearWorldModel.load), build
+    """Load the world model in `models` with its `goal_score` ("image" or "latent", see WorldModel.load), build
     every controller it has a dynamics model of from `sources`
     (a `LibrarySources`), and compose on each seed (spread over `workers` processes); writes episodes.jsonl
     (decision logs), summary.md and the videos of the first `videos` seeds. With `resume`, the episodes already
@@ -134,7 +134,7 @@ def compose_library(models: str | Path, sources, config: ComposeConfig, seeds: l
     with one_writer(out):  # a second run into it stops at once
         check_out(out, resume)  # first: a finished run in `out` is refused before anything loads
         torch.set_num_threads(1)
-        world = GearWorldModel.load(models, goal_score=goal_score, predicates=config.senses == "learned")
+        world = WorldModel.load(models, goal_score=goal_score, predicates=config.senses == "learned")
         if world.vae.config.task != sources.task:
             raise RunError(f"the world model in {models} was trained for {world.vae.config.task}, not "
                            f"{sources.task}: compose it with --task {world.vae.config.task}")
