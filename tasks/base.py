@@ -177,6 +177,7 @@ class TaskSpec:
     # The most DAgger rounds the main job runs on this task (None: as many as its profile says).
     dagger_rounds: int | None = None
     episode_steps: int | None = None  # control steps a composed episode may take (None: the main job's profile says)
+    policy_steps: int | None = None  # at most this many control steps a learned controller runs (None: the profile's)
     # The main job trains the predicate classifiers this many times its profile's epochs on this task.
     predicate_epoch_factor: int = 1
     fixed_cameras: tuple[str, ...] = ()  # the cameras not on the arm (the paper compares them with those on it)

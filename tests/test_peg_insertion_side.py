@@ -10,13 +10,15 @@ from conftest import run_cli
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from mani_skill.utils.structs.pose import Pose
 
+from policy_composer.app.demo import Makings
+from policy_composer.app.profiles import PROFILES
 from policy_composer.data.features import read_info, read_sidecar
 from policy_composer.policies import subtasks
 from policy_composer.policies.arm import Outcome, run_activation
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 from policy_composer.policies.cnn.train import policy_state
 from policy_composer.policies.library import LibrarySources, build_library
-from policy_composer.tasks.base import PlanningError
+from policy_composer.tasks.base import Percept, PlanningError
 from policy_composer.tasks.peg_insertion_side.env import CAMERA_NAMES, PREDICATES, make_env, predicates, strict_success
 from policy_composer.tasks.peg_insertion_side.kinematics import EMPTY_HAND_GAP, HAND_IN_HOLE, hand_in_hole, rule_out
 from policy_composer.tasks.peg_insertion_side.spec import SCENE_NAMES, STATE_NAMES
@@ -126,6 +128,20 @@ def test_the_planned_insertion_lines_the_peg_up_from_its_grasp_and_trims_the_arm
     assert insert.outcome is Outcome.FAILED and "no way on from where the hand was" in insert.reason
 
 
+def test_every_way_through_the_insertion_has_the_movements_its_dmp_has(peg_library):
+    """The insertion's DMP has one primitive per movement of the planned insertion, so a peg at the hole and one pushed
+    through (back along the axis) are both reached in the same number of movements: a DMP refuses any other."""
+    env, library = peg_library
+    insert, probe = library["mp_insert"], library["mp_insert"].subtask
+    obs, _ = env.reset(seed=3000, options={"start": "pre_insertion"})
+    q = insert.q9(obs)
+    at_hole = {"peg_grasped": 1.0, "peg_at_hole": 1.0, "peg_inserted": 0.0, "peg_seated": 0.0}
+    through = {**at_hole, "peg_at_hole": 0.0, "peg_inserted": 1.0}
+    ways = [probe.waypoints(insert.ik, insert.scene, q, 0.0, Percept(p, "oracle")) for p in (at_hole, through)]
+    assert [len(w) for w in ways] == [2, 2] and all(w.kind == "line" for way in ways for w in way)
+    assert probe.can_start(Percept(through, "oracle"))
+
+
 def test_the_recorder_records_the_peg_tasks_expert_from_both_cameras(tmp_path):
     """The same recording path as the gear's: a recipe of the peg task, its expert, its two cameras, its 8-D state and
     action and its predicates, into a LeRobot dataset that LeRobot loads; `--clearance`, a setting the task does not
@@ -202,6 +218,15 @@ def test_the_main_job_composes_the_peg_task_through_the_generic_stages(tmp_path)
         assert row in report, f"{row!r} missing from the report"
     cnn = next(line for line in report.splitlines() if line.startswith("| CNN | "))
     assert "/2 (95% CI " in cnn and "paper" not in report.split("## Table I")[1].split("##")[0]
+
+
+def test_the_task_bounds_its_learned_controllers_steps_within_the_profiles():
+    """The peg's CNN insertion gets the task's 50 steps at the quick profile (120), the smoke profile's 30 stay
+    fewer, and the gear, which sets none, keeps the profile's."""
+    quick, smoke = PROFILES["quick"], PROFILES["smoke"]
+    assert Makings.of(quick, "peg-insertion-side").cnn["insert"].max_steps == 50 < quick.cnn_max_steps
+    assert Makings.of(smoke, "peg-insertion-side").cnn["insert"].max_steps == smoke.cnn_max_steps < 50
+    assert Makings.of(quick, "gear-assembly").cnn["insert"].max_steps == quick.cnn_max_steps
 
 
 def test_the_peg_cnn_policy_reads_where_its_hand_is_against_the_hole(env):

@@ -109,8 +109,9 @@ class Makings:
                       else (load_recipe(name), p.transport_demos, "the pick-up and carry demonstrations")
                       for name in dict.fromkeys((insertion, *(r for r, _ in spec.demonstrations.values()))))
         rollouts = load_recipe(spec.controller_rollouts)
+        max_steps = min(p.cnn_max_steps, spec.policy_steps or p.cnn_max_steps)
         cnn = {s: CNNPolicyConfig(subtask=s, task=task, epochs=(s == "insert" and p.insert_epochs) or p.cnn_epochs,
-                                  num_mixtures=p.mixtures, image_size=p.image_size, max_steps=p.cnn_max_steps,
+                                  num_mixtures=p.mixtures, image_size=p.image_size, max_steps=max_steps,
                                   precision="bfloat16" if s in p.bfloat16_subtasks else "float32")
                for s in ("pick", "move", "insert") if s in spec.demonstrations}
         compose = ComposeConfig(horizon=p.horizon, samples=p.samples,

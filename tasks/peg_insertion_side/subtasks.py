@@ -95,11 +95,14 @@ class Insert(Subtask):
 
     def waypoints(self, ik, scene, q_now, grasp_error, percept):
         goal = peg_target_tcp(scene, SEATED, DROOP)
-        if percept["peg_inserted"]:  # part-way in: on along the axis from where the hand is, the hole holds the peg
+        if percept["peg_inserted"]:  # pushed through: back along the axis from where the hand is, the hole holds it
             tcp = scene.tcp()
             axis = scene.hole().to_transformation_matrix()[:3, 0]
             end = tcp + axis * float(axis @ (goal.p - tcp))
-            return [line_to(ik, q_now, end, np0(ik.arm.tcp.pose.q), GRIPPER_CLOSED, step=INSERT_STEP, settle=6)]
+            quat = np0(ik.arm.tcp.pose.q)
+            # In two movements, as the line-up and the push: the DMPs have a primitive for each.
+            half = line_to(ik, q_now, (tcp + end) / 2, quat, GRIPPER_CLOSED, step=INSERT_STEP, settle=0)
+            return [half, line_to(ik, half.q, end, quat, GRIPPER_CLOSED, step=INSERT_STEP, settle=6)]
         line_up = peg_target_tcp(scene, min(scene.held_head_x(), -scene.box_half_depth - LINE_UP_GAP), DROOP)
         align = line_to(ik, q_now, line_up.p, line_up.q, GRIPPER_CLOSED, step=ALIGN_STEP, settle=ALIGN_SETTLE)
         align.trim = True
