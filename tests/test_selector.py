@@ -266,13 +266,13 @@ def test_an_insertion_that_keeps_failing_is_dropped_for_the_episode():
 
 def test_the_summary_counts_back_offs_and_what_came_of_them():
     backed = "backed off: the gear did not go down the peg"
-    in_hand = dict(ended="nothing applicable", gear="in the hand above the peg")
+    in_hand = dict(ended="nothing applicable", part="in the hand above the peg")
     episodes = [ComposedEpisode(0, True, 300, activations=[Activation("mp_insert", 0, 90, "failed", backed),
                                                            Activation("cnn_insert", 90, 80, "done")], reached=3),
                 ComposedEpisode(1, False, 200, activations=[Activation("dmp_insert", 0, 90, "failed", backed)],
                                 reached=2, **in_hand),
                 ComposedEpisode(2, False, 100, activations=[Activation("cnn_insert", 0, 90, "failed", "not seated")],
-                                reached=2, ended="nothing applicable", gear="on the peg, not seated"),
+                                reached=2, ended="nothing applicable", part="on the peg, not seated"),
                 ComposedEpisode(3, False, 100, activations=[Activation("dmp_insert", 0, 90, "failed", backed)],
                                 reached=2, **in_hand)]
     text = summary(episodes, ComposeConfig())
