@@ -99,7 +99,7 @@ class Composer:
                  video_seeds: tuple[int, ...] = (), world=None, goal_score: str = "image"):
         # given: loaded in this process
         self.world = world if world is not None else WorldModel.load(models, goal_score=goal_score,
-                                                                         predicates=config.senses == "learned")
+                                                                     predicates=config.senses == "learned")
         names = list(self.world.dynamics)
         cameras = tuple(dict.fromkeys((*self.world.cameras(config.senses), *cameras_needed(names, sources))))
         task = sources.description
