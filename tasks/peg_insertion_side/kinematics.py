@@ -51,7 +51,7 @@ def hand_in_hole(state: np.ndarray, scene: np.ndarray) -> np.ndarray:
 
 def rule_out(p: dict[str, float], kinematics: np.ndarray) -> dict[str, float]:
     """Fingers wider than the peg by more than EMPTY_HAND_GAP hold nothing: the peg is neither grasped nor at the
-    pre-insertion pose, whatever the images look like; nor in the hole, which it reaches only in the hand (nothing in
+    hole, whatever the images look like; nor in the hole, which it reaches only in the hand (nothing in
     the task lets go of it), and where the head the planned grasp would hold is no sign of it."""
     if float(kinematics[HAND_IN_HOLE.index("fingers_wider_than_peg")]) > EMPTY_HAND_GAP:
         p.update(dict.fromkeys(("peg_grasped", "peg_at_hole", "peg_inserted", "peg_seated"), 0.0))
