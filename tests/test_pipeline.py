@@ -301,3 +301,13 @@ def test_the_report_states_only_its_own_runs_figures(tmp_path):
     target = re.search(r"\]\(([^)#]+)#the-main-job\)", line).group(1)
     assert (out / target).resolve() == ROOT / "README.md"
     assert "## The main job" in (ROOT / "README.md").read_text()
+
+
+def test_another_tasks_report_claims_none_of_the_gears_figures(tmp_path):
+    """The profiles' words on what holds at their size are the gear's figures: a second task's report points to its
+    own docs instead."""
+    out = tmp_path / "results"
+    records = {"compose": StageRecord("compose", "compose", "k", out / "pipeline" / "compose-k", 60.0, False)}
+    header = _header(PROFILES["quick"], records, 60.0, out, get_spec("peg-insertion-side"))
+    assert PROFILES["quick"].holds not in header and "Measured elsewhere" not in header
+    assert "PegInsertionSide-v1's held-out figures are in the task's docs" in header

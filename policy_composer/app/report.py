@@ -113,9 +113,12 @@ def _header(profile, records: dict[str, StageRecord], wall_seconds: float, out: 
            f"{sum(r.seconds for r in records.values()) / 60:.1f} min when they ran."
            if len(ran) < len(records) else "."),
         "",
-        f"**What holds at this size.** {profile.holds}", "",
-        *([f"**Measured elsewhere, not by this run:** {profile.elsewhere}, in {where}.", ""]
-          if profile.elsewhere else []),
+        *([f"**What holds at this size.** {profile.holds}", "",
+           *([f"**Measured elsewhere, not by this run:** {profile.elsewhere}, in {where}.", ""]
+             if profile.elsewhere else [])]
+          if spec.name == DEFAULT_TASK else  # the profiles' words are the gear's figures
+          [f"**What holds at this size.** This run's figures are on its own seeds (0-{profile.compose_episodes - 1}"
+           f" for the compositions); {spec.env_id}'s held-out figures are in the task's docs (docs/task.md).", ""]),
         f"Sizes: {profile.insertion_demos} insertion demonstrations"
         + (f" and {profile.transport_demos} pick-up and carry demonstrations" if "transport-demos" in records else "")
         + ", "
