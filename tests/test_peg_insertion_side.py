@@ -22,6 +22,7 @@ from policy_composer.tasks.base import Percept, PlanningError
 from policy_composer.tasks.peg_insertion_side.env import CAMERA_NAMES, PREDICATES, make_env, predicates, strict_success
 from policy_composer.tasks.peg_insertion_side.kinematics import EMPTY_HAND_GAP, HAND_IN_HOLE, hand_in_hole, rule_out
 from policy_composer.tasks.peg_insertion_side.spec import SCENE_NAMES, STATE_NAMES
+from policy_composer.tasks.peg_insertion_side.subtasks import SUBTASKS
 from policy_composer.tasks.peg_insertion_side.task import labels
 
 
@@ -140,6 +141,17 @@ def test_every_way_through_the_insertion_has_the_movements_its_dmp_has(peg_libra
     ways = [probe.waypoints(insert.ik, insert.scene, q, 0.0, Percept(p, "oracle")) for p in (at_hole, through)]
     assert [len(w) for w in ways] == [2, 2] and all(w.kind == "line" for way in ways for w in way)
     assert probe.can_start(Percept(through, "oracle"))
+
+
+@pytest.mark.parametrize("grasped", [0.0, 1.0])
+@pytest.mark.parametrize("at_hole", [0.0, 1.0])
+def test_a_peg_sensed_in_the_hole_is_in_no_initiation_set(grasped, at_hole):
+    """A composed episode ends when no controller can start: with the peg sensed seated, none may, whatever the
+    classifiers say of the hand and the hole beside it (an insertion that started again on a seated peg, sensed at the
+    hole too, was done at once, and the next one with it, until one pulled the peg out)."""
+    sensed = {"peg_grasped": grasped, "peg_at_hole": at_hole, "peg_inserted": 1.0, "peg_seated": 1.0}
+    percept = Percept(sensed, "learned")
+    assert not [s.name for s in SUBTASKS.values() if s.can_start(percept)]
 
 
 def test_the_recorder_records_the_peg_tasks_expert_from_both_cameras(tmp_path):

@@ -83,15 +83,17 @@ class Insert(Subtask):
     Where the peg sits in the fingers is the plan's, not seen: a peg that slid or pivoted there meets the box's face."""
 
     name = "insert"
-    initiation = "peg in the hand at the hole (in front of it or part-way in), or in it and not seated"
+    initiation = "peg in the hand at the hole (in front of it or part-way in) or pushed past the box, not seated"
     holds_part = True
     # The push aims past where the head seats whatever the grasp's error; the demonstrations stop where it seats, so
     # the classifiers never saw a peg pushed deeper.
     stops_when_sensed = True
 
     def can_start(self, percept):
-        return percept["peg_at_hole"] or (percept["peg_grasped"] and percept["peg_inserted"]
-                                          and not percept["peg_seated"])
+        # Not seated, whatever else is sensed: a peg sensed seated and at the hole would start one insertion after
+        # another, each done at once, until one pulled the peg out.
+        return not percept["peg_seated"] and (percept["peg_at_hole"]
+                                              or (percept["peg_grasped"] and percept["peg_inserted"]))
 
     def waypoints(self, ik, scene, q_now, grasp_error, percept):
         goal = peg_target_tcp(scene, SEATED, DROOP)
