@@ -94,7 +94,7 @@ class SubtaskController(ScriptedController):
     def next_command(self, obs):
         if self.subtask.stops_when_sensed:
             self._confirmed = self._confirmed + 1 if self.subtask.succeeded(self.senses(obs))[0] else 0
-            if self._confirmed >= CONFIRM_STEPS:
+            if self._confirmed >= CONFIRM_STEPS + self.subtask.sensed_margin:
                 return None
         try:
             if self.guesses and self.blocked(obs):  # back up and line up for the next guess

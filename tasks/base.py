@@ -111,6 +111,9 @@ class Subtask:
     # Whether a planned controller stops once the subtask is sensed achieved (CONFIRM_STEPS in a row), not at the
     # end of its plan: where the plan goes on past what the senses ever saw achieved.
     stops_when_sensed = False
+    # The control steps such a controller goes on along its plan once it has sensed the subtask achieved: a
+    # classifier that sees the goal a little before the sharp bound that defines it would otherwise stop short of it.
+    sensed_margin = 0
     # Offsets (m) to assume in turn, each time a probing waypoint is blocked; () draws the pick-up's perception error.
     search: tuple[float, ...] = ()
 
