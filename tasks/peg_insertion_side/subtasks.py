@@ -88,8 +88,8 @@ class Insert(Subtask):
     # The push aims past where the head seats whatever the grasp's error; the demonstrations stop where it seats, so
     # the classifiers never saw a peg pushed deeper.
     stops_when_sensed = True
-    # The seated classifier says so up to 9 mm before the head reaches ManiSkill's bound (on the tuning seeds: first at
-    # 24 mm short of the hole's centre plane, the bound 15 mm short): three more steps of the push (9 mm) seat it.
+    # The seated classifier says so up to 9 mm before the head reaches ManiSkill's bound (docs/task.md): three more
+    # steps of the push (9 mm) seat it, still far short of the box's far face.
     sensed_margin = 3
 
     def can_start(self, percept):
