@@ -28,7 +28,7 @@ from policy_composer.data.interrupt import flag_interrupts
 from policy_composer.learning.checkpoint import weights_id
 from policy_composer.policies.cnn import train
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
-from policy_composer.tasks.registry import get_spec
+from policy_composer.tasks.registry import DEFAULT_TASK, get_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -304,10 +304,10 @@ def test_the_report_states_only_its_own_runs_figures(tmp_path):
 
 
 def test_another_tasks_report_claims_none_of_the_gears_figures(tmp_path):
-    """The profiles' words on what holds at their size are the gear's figures: a second task's report points to its
-    own docs instead."""
+    """The profiles' words on what holds at their size are the gear's figures (keyed by it): a second task's report
+    points to its own docs instead."""
     out = tmp_path / "results"
     records = {"compose": StageRecord("compose", "compose", "k", out / "pipeline" / "compose-k", 60.0, False)}
     header = _header(PROFILES["quick"], records, 60.0, out, get_spec("peg-insertion-side"))
-    assert PROFILES["quick"].holds not in header and "Measured elsewhere" not in header
+    assert PROFILES["quick"].holds[DEFAULT_TASK] not in header and "Measured elsewhere" not in header
     assert "PegInsertionSide-v1's held-out figures are in the task's docs" in header

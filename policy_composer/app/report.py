@@ -105,14 +105,12 @@ def _header(profile, records: dict[str, StageRecord], wall_seconds: float, out: 
     readme = Path(__file__).resolve().parents[2] / "README.md"
     where = f"[the README's main-job section]({os.path.relpath(readme, out)}#the-main-job)" if readme.exists() else \
         "the main-job section of policy-composer's README"
-    if spec.name == DEFAULT_TASK:  # the profiles' words are the gear's figures
-        holds = [f"**What holds at this size.** {profile.holds}", ""]
-        if profile.elsewhere:
-            holds += [f"**Measured elsewhere, not by this run:** {profile.elsewhere}, in {where}.", ""]
-    else:
-        holds = [f"**What holds at this size.** This run's figures are on its own seeds (0-"
-                 f"{profile.compose_episodes - 1} for the compositions); {spec.env_id}'s held-out figures are in the "
-                 "task's docs (docs/task.md).", ""]
+    supported = profile.holds.get(spec.name) or (
+        f"This run's figures are on its own seeds (0-{profile.compose_episodes - 1} for the compositions); "
+        f"{spec.env_id}'s held-out figures are in the task's docs (docs/task.md).")
+    holds = [f"**What holds at this size.** {supported}", ""]
+    if elsewhere := profile.elsewhere.get(spec.name):
+        holds += [f"**Measured elsewhere, not by this run:** {elsewhere}, in {where}.", ""]
     return "\n".join([
         f"# Composing diverse policies: the paper reproduced on this machine ({spec.env_id})", "",
         f"Profile `{profile.name}`, written {time.strftime('%Y-%m-%d %H:%M')}. This run took "
