@@ -8,7 +8,8 @@ safety" (the paper's `*`) and holds the arm.
 A controller serving a subtask also has the subtask guard its gripper: a release the subtask would not survive
 (a gear let go on top of the peg instead of on it) is not sent; the controller backs off to where the subtask
 began, still holding the part, and fails, so the selector can give the subtask to another controller. It does the
-same when the subtask says it is off course.
+same when the subtask says it is off course, and, where the subtask pushes a held part, when the hand is held back
+(the part met something: pushing on would slide it in the fingers or turn it there).
 
 Initiation sets, terminations and guards read the task's predicates through the controller's `senses` (see
 policies/senses.py: classifiers of the cameras and joints, or the simulator's truth for recording and the oracle's
@@ -18,6 +19,7 @@ their own (joint angles for planning and DMPs, camera pixels for the CNN).
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 from enum import Enum
 
@@ -33,6 +35,11 @@ from policy_composer.tasks.registry import task_of
 # Steps a controller did not plan (a learned policy's, the way into a back-off) are limited to this fraction of the
 # joint velocity limits.
 STEP_SPEED_MARGIN = 0.9
+# A controller whose subtask says so (`Subtask.stops_when_held_back`) stops when the hand (joint positions, forward
+# kinematics) is at least HELD_BACK_LAG short of where its commands put the TCP and went less than HELD_BACK_MOTION
+# towards it over the last HELD_BACK_STEPS control steps. On the peg's tuning seeds, pushes that went on lagged their
+# commands by up to 14 mm while the hand moved; a push held back for longer slid the peg along the fingers.
+HELD_BACK_LAG, HELD_BACK_MOTION, HELD_BACK_STEPS = 0.012, 0.003, 3
 
 
 class Outcome(str, Enum):
@@ -91,6 +98,7 @@ class ArmController(Controller):
         self._gripper = float(self._hold[7])
         self._back_off: list[np.ndarray] | None = None  # joint targets still to go, once backing off
         self._back_off_reason = ""
+        self._hand: deque[np.ndarray] = deque(maxlen=HELD_BACK_STEPS + 1)  # the measured TCP, for `held_back`
 
     def act(self, obs) -> torch.Tensor:
         action = self._hold.copy()
@@ -124,6 +132,10 @@ class ArmController(Controller):
         """The next command, unless the subtask says to stop here (a release it would not survive, or the part led
         off its course): then the back-off's next one."""
         if self._back_off is None:
+            held = self.held_back(obs) if self.subtask is not None and self.subtask.stops_when_held_back else ""
+            if held:
+                self._back_off, self._back_off_reason = [], f"held back: {held}"
+                return None
             cmd = self.next_command(obs)
             if self.subtask is None:
                 return cmd
@@ -139,6 +151,21 @@ class ArmController(Controller):
             self._back_off = [*ramp(self._last, path[0], self.rate_hz)[:-1], *path] if len(path) else []
             self._back_off_reason = f"{'backed off' if self._back_off else 'kept the part (no way back)'}: {why}"
         return (self._back_off.pop(0), GRIPPER_CLOSED) if self._back_off else None
+
+    def held_back(self, obs) -> str:
+        """Why the hand is held back from where its commands have gone ("" if it is not): from the commands and the
+        measured joints, as the arm's own controller knows them."""
+        commanded, measured = self.ik.tcp_positions(np.stack([self._last, self.arm_qpos(obs)]))
+        self._hand.append(measured)
+        lag = commanded - measured
+        short = float(np.linalg.norm(lag))
+        if len(self._hand) <= HELD_BACK_STEPS or short < HELD_BACK_LAG:
+            return ""
+        went = float((measured - self._hand[0]) @ lag) / short
+        if went >= HELD_BACK_MOTION:
+            return ""
+        return (f"the hand is {1000 * short:.0f} mm short of its command and went {1000 * went:.0f} mm towards it "
+                f"over the last {HELD_BACK_STEPS} steps: the part met something")
 
     def safety_violation(self, q: np.ndarray) -> str:
         """Why joint targets `q` would break the Panda's limits ("" if they would not)."""

@@ -114,6 +114,9 @@ class Subtask:
     # The control steps such a controller goes on along its plan once it has sensed the subtask achieved: a
     # classifier that sees the goal a little before the sharp bound that defines it would otherwise stop short of it.
     sensed_margin = 0
+    # Whether a controller pushing the held part stops when the hand is held back (policies/arm.py): a part pushed on
+    # against what blocks it slides or turns in the fingers, and no controller that assumes the grasp can go on.
+    stops_when_held_back = False
     # Offsets (m) to assume in turn, each time a probing waypoint is blocked; () draws the pick-up's perception error.
     search: tuple[float, ...] = ()
 

@@ -19,6 +19,7 @@ from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 from policy_composer.policies.cnn.train import policy_state
 from policy_composer.policies.library import LibrarySources, build_library
 from policy_composer.tasks.base import Percept, PlanningError
+from policy_composer.tasks.peg_insertion_side import subtasks as subtasks_of_peg
 from policy_composer.tasks.peg_insertion_side.env import CAMERA_NAMES, PREDICATES, make_env, predicates, strict_success
 from policy_composer.tasks.peg_insertion_side.kinematics import EMPTY_HAND_GAP, HAND_IN_HOLE, hand_in_hole, rule_out
 from policy_composer.tasks.peg_insertion_side.spec import SCENE_NAMES, STATE_NAMES
@@ -129,6 +130,32 @@ def test_the_planned_insertion_lines_the_peg_up_from_its_grasp_and_trims_the_arm
     monkeypatch.setattr(subtasks, "line_to", no_plan)  # the trim's re-plan
     run_activation(env, insert, obs, 3000)
     assert insert.outcome is Outcome.FAILED and "no way on from where the hand was" in insert.reason
+
+
+def _peg_in_hand(env) -> np.ndarray:
+    """Where the peg sits in the hand: its position in the TCP's frame (m)."""
+    u = env.unwrapped
+    return (u.agent.tcp.pose.inv() * u.peg.pose).p[0].cpu().numpy()
+
+
+def test_an_insertion_held_back_by_the_boxs_face_stops_before_the_peg_slides_in_the_fingers(peg_library,
+                                                                                             monkeypatch):
+    """A push aimed 12 mm above the hole meets the box's face: the insertion stops, held back (from its commands and
+    the measured joints), with the peg where the grasp put it; pushed on, the same miss slides the peg along the
+    fingers, and no controller that assumes the grasp could seat it after that."""
+    env, library = peg_library
+    insert = library["mp_insert"]
+    monkeypatch.setattr(subtasks_of_peg, "DROOP", 0.012)  # the plan lifts the peg 12 mm, not 1.5
+    slid = {}
+    for guarded in (True, False):
+        monkeypatch.setattr(insert.subtask, "stops_when_held_back", guarded)
+        obs, _ = env.reset(seed=3000, options={"start": "pre_insertion"})
+        before = _peg_in_hand(env)
+        run_activation(env, insert, obs, 3000)
+        assert insert.outcome is Outcome.FAILED and not strict_success(env)[0]
+        assert ("held back" in insert.reason) == guarded, insert.reason
+        slid[guarded] = float(np.linalg.norm(_peg_in_hand(env) - before))
+    assert slid[True] < 0.002 < 0.01 < slid[False], slid
 
 
 def test_every_way_through_the_insertion_has_the_movements_its_dmp_has(peg_library):

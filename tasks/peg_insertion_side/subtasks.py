@@ -91,6 +91,10 @@ class Insert(Subtask):
     # The seated classifier says so up to 9 mm before the head reaches ManiSkill's bound (docs/task.md): three more
     # steps of the push (9 mm) seat it, still far short of the box's far face.
     sensed_margin = 3
+    # A push whose head meets the box's face beside the hole (a learned policy's miss, a primitive's drift) slid the
+    # peg along the fingers by up to 130 mm when it went on (docs/task.md); stopped there, it leaves the grasp as
+    # planned for the planned insertion to line up again.
+    stops_when_held_back = True
 
     def can_start(self, percept):
         # Not seated, whatever else is sensed: a peg sensed seated and at the hole would start one insertion after
