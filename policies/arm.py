@@ -8,8 +8,9 @@ safety" (the paper's `*`) and holds the arm.
 A controller serving a subtask also has the subtask guard its gripper: a release the subtask would not survive
 (a gear let go on top of the peg instead of on it) is not sent; the controller backs off to where the subtask
 began, still holding the part, and fails, so the selector can give the subtask to another controller. It does the
-same when the subtask says it is off course, and, where the subtask pushes a held part, when the hand is held back
-(the part met something: pushing on would slide it in the fingers or turn it there).
+same when the subtask says it is off course. Where the subtask pushes a held part, the controller also stops where it
+is, and fails, when the hand is held back (the part met something: pushing on would slide it in the fingers or turn
+it there).
 
 Initiation sets, terminations and guards read the task's predicates through the controller's `senses` (see
 policies/senses.py: classifiers of the cameras and joints, or the simulator's truth for recording and the oracle's
