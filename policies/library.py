@@ -25,7 +25,7 @@ from policy_composer.policies.sources import (
 
 # Bumped when the controllers behave differently, so that stored runs of the old ones are not reused (CHANGELOG.md
 # says what each revision changed).
-LIBRARY_REVISION = 17
+LIBRARY_REVISION = 18
 
 __all__ = ["LIBRARY_REVISION", "MODELS", "LeRobotSource", "LibraryError", "LibrarySources", "all_names",
            "build_library", "cameras_needed", "check_models", "model_ids", "names_of_kind", "subtask_of"]

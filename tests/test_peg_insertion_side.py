@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import sapien
 import torch
 from conftest import run_cli
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
@@ -22,6 +23,7 @@ from policy_composer.tasks.base import Percept, PlanningError
 from policy_composer.tasks.peg_insertion_side import subtasks as subtasks_of_peg
 from policy_composer.tasks.peg_insertion_side.env import CAMERA_NAMES, PREDICATES, make_env, predicates, strict_success
 from policy_composer.tasks.peg_insertion_side.kinematics import EMPTY_HAND_GAP, HAND_IN_HOLE, hand_in_hole, rule_out
+from policy_composer.tasks.peg_insertion_side.scene import PegScene
 from policy_composer.tasks.peg_insertion_side.spec import SCENE_NAMES, STATE_NAMES
 from policy_composer.tasks.peg_insertion_side.subtasks import INSERT_STEP, SEATED, SUBTASKS
 from policy_composer.tasks.peg_insertion_side.task import labels
@@ -284,6 +286,25 @@ def test_the_peg_cnn_policy_reads_where_its_hand_is_against_the_hole(env):
     assert np.allclose(read[0, 1:].numpy(), hand_in_hole(state.numpy(), scene.numpy())[0], atol=1e-6)
     with pytest.raises(ValueError, match="observation.environment_state"):
         policy_state(state, config)
+
+
+def test_a_learned_insertion_holds_the_peg_along_the_holes_axis_as_planned(env):
+    """A learned insertion steps in the hand's frame at the orientation its scene gives. Holding the peg, that is the
+    hand turned so that the peg, held as planned, lies along the hole's axis (as the planned insertions hold it), not
+    the turn the carry left (1-2 degrees off the axis at this start), so its pushes go along the axis. Empty, the hand
+    keeps the orientation it has."""
+    u = env.unwrapped
+    env.reset(seed=3011)  # the hand empty, open over the table
+    scene = PegScene(u)
+    assert np.allclose(scene.hand_quat(None, u.agent.robot.get_qpos()[0].numpy()), u.agent.tcp.pose.q[0])
+    env.reset(seed=3011, options={"start": "pre_insertion"})
+    hole = scene.hole().to_transformation_matrix()[:3, :3]
+    carried = (u.box_hole_pose.inv() * u.agent.tcp.pose).to_transformation_matrix()[0, :3, 0].numpy()
+    assert np.degrees(np.arccos(abs(carried[0]))) > 1.0  # the carry's leftover turn
+    kept = sapien.Pose(scene.tcp(), scene.hand_quat(None, u.agent.robot.get_qpos()[0].numpy()))
+    assert abs(float(kept.to_transformation_matrix()[:3, 0] @ hole[:, 0])) > 1 - 1e-9  # the hand's x along the axis
+    peg = (kept * scene.peg_in_hand()).to_transformation_matrix()[:3, :3]
+    assert np.allclose(peg, hole, atol=1e-6)  # the planned peg lies as the hole does, head first
 
 
 def test_fingers_wider_than_the_peg_hold_nothing():

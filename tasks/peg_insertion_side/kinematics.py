@@ -12,15 +12,12 @@ import numpy as np
 from transforms3d.quaternions import quat2mat
 
 from policy_composer.tasks.panda import PandaForwardKinematics
-from policy_composer.tasks.peg_insertion_side.scene import grasp_offset
+from policy_composer.tasks.peg_insertion_side.scene import EMPTY_HAND_GAP, grasp_offset
 
 HAND_IN_HOLE = ("hand_in_hole_x", "hand_in_hole_y", "hand_in_hole_z",
                 "hole_axis_in_hand_x", "hole_axis_in_hand_y", "hole_axis_in_hand_z",
                 "planned_head_in_hole_x", "planned_head_in_hole_y", "planned_head_in_hole_z",
                 "planned_head_past_near_face", "fingers_wider_than_peg")
-# The fingers squeeze a held peg: in the recordings the gripper was 0.7-3.8 mm narrower than the peg whenever it held
-# it. Wider than the peg by more than this, the hand holds nothing (m).
-EMPTY_HAND_GAP = 0.002
 
 
 @cache

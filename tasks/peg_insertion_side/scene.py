@@ -16,6 +16,9 @@ from policy_composer.tasks.peg_insertion_side.flags import box_half_depth
 from policy_composer.tasks.scene import Obstacle, table_obstacle
 
 MARGIN = 0.004  # around the box's walls in the collision checks (m)
+# The fingers squeeze a held peg: in the recordings the gripper was 0.7-3.8 mm narrower than the peg whenever it held
+# it. Wider than the peg by more than this, the hand holds nothing (m).
+EMPTY_HAND_GAP = 0.002
 
 
 def pose0(pose) -> sapien.Pose:
@@ -80,8 +83,14 @@ class PegScene:
         return d / np.linalg.norm(d)
 
     def hand_quat(self, ik, q9: np.ndarray) -> np.ndarray:
-        """The hand as it holds the peg now (the grasp fixes how the peg meets the hole)."""
-        return np0(self.env.agent.tcp.pose.q)
+        """Holding the peg (the fingers no wider than it), the hand turned so that the peg, held as planned, lies along
+        the hole's axis, as the planned insertions hold it: a learned insertion's steps in the hand's frame then push
+        along the axis instead of drifting across it with the carry's leftover turn. Empty, the hand as it is."""
+        tcp, hole = pose0(self.env.agent.tcp.pose), self.hole()
+        if float(q9[7] + q9[8]) - 2 * self.half_width > EMPTY_HAND_GAP:
+            return tcp.q
+        toward_hole = tcp.to_transformation_matrix()[:3, 0] @ hole.to_transformation_matrix()[:3, 0]
+        return (sapien.Pose(q=hole.q) * self.peg_in_hand(1.0 if toward_hole >= 0 else -1.0).inv()).q
 
     def planning_obstacles(self) -> list[Obstacle]:
         return [table_obstacle(), *box_obstacles(self.env)]
@@ -96,10 +105,11 @@ class PegScene:
         tcp_x = pose0(self.env.agent.tcp.pose).to_transformation_matrix()[:3, 0]
         return 1.0 if float(tcp_x @ self.planner_peg().to_transformation_matrix()[:3, 0]) >= 0 else -1.0
 
-    def peg_in_hand(self) -> sapien.Pose:
+    def peg_in_hand(self, sign: float | None = None) -> sapien.Pose:
         """Where the planned grasp holds the peg, in the TCP frame: across the fingers' centre, `grasp_offset` back
-        from its centre, its axis along the TCP's x (toward its head or tail as the hand took it)."""
-        sign = self.head_along_tcp_x()
+        from its centre, its axis along the TCP's x (toward its head, sign +1, or its tail, -1; by default as the hand
+        took it)."""
+        sign = sign or self.head_along_tcp_x()
         # The TCP's z points down into the hand, the lying peg's z up: half a turn about the TCP's x (the peg's head
         # along it) or its y (the head the other way).
         turn = [0.0, 1.0, 0.0, 0.0] if sign > 0 else [0.0, 0.0, 1.0, 0.0]
