@@ -188,7 +188,7 @@ def test_a_peg_sensed_in_the_hole_is_in_no_initiation_set(grasped, at_hole):
 def test_the_recorder_records_the_peg_tasks_expert_from_both_cameras(tmp_path):
     """The same recording path as the gear's: a recipe of the peg task, its expert, its two cameras, its 8-D state and
     action and its predicates, into a LeRobot dataset that LeRobot loads; `--clearance`, a setting the task does not
-    have, is refused in one line."""
+    have, is refused in one line, and so is training the insertion's policy on it (the task read from the dataset)."""
     root = tmp_path / "peg"
     result = run_cli("record", "peg-full-task-demos", "--episodes", "1", "--resolution", "32", "--root", str(root),
                      cwd=tmp_path)
@@ -213,6 +213,9 @@ def test_the_recorder_records_the_peg_tasks_expert_from_both_cameras(tmp_path):
     refused = run_cli("record", "peg-full-task-demos", "--clearance", "2", "--root", str(tmp_path / "no"),
                       cwd=tmp_path)
     assert refused.returncode == 2 and "PegInsertionSide-v1 has no setting clearance" in refused.stderr
+    # Training reads the task from the dataset: these are the peg's full-task demonstrations, not its insertion's.
+    refused = run_cli("train", "policy", "--dataset", str(root), "--out", str(tmp_path / "cnn"), cwd=tmp_path)
+    assert refused.returncode == 2 and "needs peg-insertion-demos" in refused.stderr, refused.stderr[-2000:]
 
 
 def test_the_pre_insertion_start_holds_the_peg_in_front_of_the_hole_at_step_zero(env):

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 from dataclasses import MISSING, fields
 
+from policy_composer.app.errors import RunError
 from policy_composer.tasks.registry import known_cameras
 
 _TYPES = {"int": int, "float": float, "str": str}
@@ -77,7 +78,12 @@ def add_config_options(parser: argparse.ArgumentParser, config_cls: type, flags:
                             choices=choices, help=f"{help_text} (default: {default!r})")
 
 
-def config_from(args: argparse.Namespace, config_cls: type):
-    """`config_cls` filled with the flags `add_config_options` added for it."""
+def config_from(args: argparse.Namespace, config_cls: type, **given):
+    """`config_cls` filled with the flags `add_config_options` added for it and the fields `given`; a combination
+    the config refuses is the user's to fix (one line, not a traceback)."""
     prefix = f"{config_cls.__name__}."
-    return config_cls(**{k.removeprefix(prefix): v for k, v in vars(args).items() if k.startswith(prefix)})
+    try:
+        return config_cls(**{k.removeprefix(prefix): v for k, v in vars(args).items() if k.startswith(prefix)},
+                          **given)
+    except ValueError as e:
+        raise RunError(f"{e} (see --help)") from e

@@ -9,12 +9,13 @@ from dataclasses import replace
 from policy_composer.app.arguments import add_config_options, at_least, config_from, names
 from policy_composer.app.cli.options import WORLD, dataset_path, env_options, training_threads
 from policy_composer.data.atomic import check_replaceable
+from policy_composer.data.features import read_sidecar
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 from policy_composer.policies.dmp.configuration_dmp import FIT_EPISODES, FIT_FIRST_SEED
 from policy_composer.policies.sources import MODELS
 from policy_composer.selector.configuration import DynamicsConfig, GoalScoreConfig, PredicateConfig, VAEConfig
 from policy_composer.tasks.gear_assembly.spec import CAMERA_NAMES
-from policy_composer.tasks.registry import get_spec, get_task
+from policy_composer.tasks.registry import DEFAULT_TASK, TASKS, get_spec, get_task
 
 
 def cmd_train_policy(args: argparse.Namespace) -> int:
@@ -22,7 +23,8 @@ def cmd_train_policy(args: argparse.Namespace) -> int:
     from policy_composer.policies.cnn.train import train_cnn_policy
 
     training_threads(args.threads)
-    config = config_from(args, CNNPolicyConfig)
+    task = args.task or (read_sidecar(args.dataset[0]).get("task_name") if args.dataset else None) or DEFAULT_TASK
+    config = config_from(args, CNNPolicyConfig, task=task)
     dataset = args.dataset or [dataset_path(get_spec(config.task).demonstrations[config.subtask][0])]
     out = args.out or str(MODELS / "cnn" / config.subtask)
     t0 = time.time()
@@ -97,6 +99,8 @@ def add_commands(sub) -> None:
         "image_size": "image-size", "num_mixtures": "mixtures", "action_space": "action-space",
         "proprioception": "proprioception", "shift": "shift", "batch_size": "batch-size", "seed": "seed",
         "max_steps": "max-steps", "offset_weight": "offset-weight", "precision": "precision"})
+    tr_policy.add_argument("--task", choices=tuple(TASKS), help="the task the policy is for (default: the one its "
+                           f"first dataset was recorded in, else {DEFAULT_TASK})")
     tr_policy.add_argument("--threads", type=at_least(1), default=2)
     tr_policy.add_argument("--out", help=f"checkpoint folder (default: {MODELS / 'cnn'}/SUBTASK, where the "
                            "library's CNN model looks)")
