@@ -83,9 +83,10 @@ class PegScene:
         return d / np.linalg.norm(d)
 
     def hand_quat(self, ik, q9: np.ndarray) -> np.ndarray:
-        """Holding the peg (the fingers no wider than it), the hand turned so that the peg, held as planned, lies along
-        the hole's axis, as the planned insertions hold it: a learned insertion's steps in the hand's frame then push
-        along the axis instead of drifting across it with the carry's leftover turn. Empty, the hand as it is."""
+        """Holding the peg (the fingers at most EMPTY_HAND_GAP wider than it), the hand turned so that the peg, held as
+        planned, lies along the hole's axis, as the planned insertions hold it: a learned insertion's steps in the
+        hand's frame then push along the axis instead of drifting across it with the carry's leftover turn. Empty, the
+        hand as it is."""
         tcp, hole = pose0(self.env.agent.tcp.pose), self.hole()
         if float(q9[7] + q9[8]) - 2 * self.half_width > EMPTY_HAND_GAP:
             return tcp.q
