@@ -9,7 +9,7 @@ from dataclasses import replace
 from policy_composer.app.arguments import add_config_options, at_least, config_from, names
 from policy_composer.app.cli.options import WORLD, dataset_path, env_options, training_threads
 from policy_composer.data.atomic import check_replaceable
-from policy_composer.data.features import read_sidecar
+from policy_composer.data.catalog import dataset_spec
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 from policy_composer.policies.dmp.configuration_dmp import FIT_EPISODES, FIT_FIRST_SEED
 from policy_composer.policies.sources import MODELS
@@ -23,7 +23,7 @@ def cmd_train_policy(args: argparse.Namespace) -> int:
     from policy_composer.policies.cnn.train import train_cnn_policy
 
     training_threads(args.threads)
-    task = args.task or (read_sidecar(args.dataset[0]).get("task_name") if args.dataset else None) or DEFAULT_TASK
+    task = args.task or (dataset_spec(args.dataset[0]).name if args.dataset else DEFAULT_TASK)
     config = config_from(args, CNNPolicyConfig, task=task)
     dataset = args.dataset or [dataset_path(get_spec(config.task).demonstrations[config.subtask][0])]
     out = args.out or str(MODELS / "cnn" / config.subtask)
