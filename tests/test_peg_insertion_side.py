@@ -22,8 +22,8 @@ from policy_composer.policies.library import LibrarySources, build_library
 from policy_composer.tasks.base import Percept, PlanningError
 from policy_composer.tasks.peg_insertion_side import subtasks as subtasks_of_peg
 from policy_composer.tasks.peg_insertion_side.env import CAMERA_NAMES, PREDICATES, make_env, predicates, strict_success
-from policy_composer.tasks.peg_insertion_side.kinematics import EMPTY_HAND_GAP, HAND_IN_HOLE, hand_in_hole, rule_out
-from policy_composer.tasks.peg_insertion_side.scene import PegScene
+from policy_composer.tasks.peg_insertion_side.kinematics import HAND_IN_HOLE, hand_in_hole, rule_out
+from policy_composer.tasks.peg_insertion_side.scene import EMPTY_HAND_GAP, PegScene
 from policy_composer.tasks.peg_insertion_side.spec import SCENE_NAMES, STATE_NAMES
 from policy_composer.tasks.peg_insertion_side.subtasks import INSERT_STEP, SEATED, SUBTASKS
 from policy_composer.tasks.peg_insertion_side.task import labels

@@ -12,7 +12,7 @@ import numpy as np
 from transforms3d.quaternions import quat2mat
 
 from policy_composer.tasks.panda import PandaForwardKinematics
-from policy_composer.tasks.peg_insertion_side.scene import EMPTY_HAND_GAP, grasp_offset
+from policy_composer.tasks.peg_insertion_side.scene import grasp_offset, holds_nothing
 
 HAND_IN_HOLE = ("hand_in_hole_x", "hand_in_hole_y", "hand_in_hole_z",
                 "hole_axis_in_hand_x", "hole_axis_in_hand_y", "hole_axis_in_hand_z",
@@ -50,6 +50,6 @@ def rule_out(p: dict[str, float], kinematics: np.ndarray) -> dict[str, float]:
     """Fingers wider than the peg by more than EMPTY_HAND_GAP hold nothing: the peg is neither grasped nor at the
     hole, whatever the images look like; nor in the hole, which it reaches only in the hand (nothing in
     the task lets go of it), and where the head the planned grasp would hold is no sign of it."""
-    if float(kinematics[HAND_IN_HOLE.index("fingers_wider_than_peg")]) > EMPTY_HAND_GAP:
+    if holds_nothing(float(kinematics[HAND_IN_HOLE.index("fingers_wider_than_peg")])):
         p.update(dict.fromkeys(("peg_grasped", "peg_at_hole", "peg_inserted", "peg_seated"), 0.0))
     return p

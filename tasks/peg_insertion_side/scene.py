@@ -21,6 +21,11 @@ MARGIN = 0.004  # around the box's walls in the collision checks (m)
 EMPTY_HAND_GAP = 0.002
 
 
+def holds_nothing(fingers_wider_than_peg: float) -> bool:
+    """Whether fingers this much wider than the peg (m, from the gripper's joints) hold nothing."""
+    return fingers_wider_than_peg > EMPTY_HAND_GAP
+
+
 def pose0(pose) -> sapien.Pose:
     """Env 0 of a ManiSkill batched pose."""
     return sapien.Pose(np0(pose.p), np0(pose.q))
@@ -83,12 +88,11 @@ class PegScene:
         return d / np.linalg.norm(d)
 
     def hand_quat(self, ik, q9: np.ndarray) -> np.ndarray:
-        """Holding the peg (the fingers at most EMPTY_HAND_GAP wider than it), the hand turned so that the peg, held as
-        planned, lies along the hole's axis, as the planned insertions hold it: a learned insertion's steps in the
-        hand's frame then push along the axis instead of drifting across it with the carry's leftover turn. Empty, the
-        hand as it is."""
+        """Holding the peg (see `holds_nothing`), the hand turned so that the peg, held as planned, lies along the
+        hole's axis, as the planned insertions hold it: a learned insertion's steps in the hand's frame then push along
+        the axis instead of drifting across it with the carry's leftover turn. Empty, the hand as it is."""
         tcp, hole = pose0(self.env.agent.tcp.pose), self.hole()
-        if float(q9[7] + q9[8]) - 2 * self.half_width > EMPTY_HAND_GAP:
+        if holds_nothing(float(q9[7] + q9[8]) - 2 * self.half_width):
             return tcp.q
         toward_hole = tcp.to_transformation_matrix()[:3, 0] @ hole.to_transformation_matrix()[:3, 0]
         return (sapien.Pose(q=hole.q) * self.peg_in_hand(1.0 if toward_hole >= 0 else -1.0).inv()).q
