@@ -211,6 +211,12 @@ def test_a_dagger_round_records_the_experts_labels_along_the_policys_own_path(in
     assert np.abs(np.stack(executed)[:, :7] - np.stack(recorded)[:, :7]).max() > 1e-3  # the arm followed the policy
     data = load_demonstrations([insertion_demos, root], config, progress=False)
     assert len(data["image"]) == len(load_demonstrations(insertion_demos, config, progress=False)["image"]) + len(ds)
+    # A policy that reaches the goal, as the expert judges it, before it terminates is an episode done, a success.
+    monkeypatch.setattr(GearAssemblyExpert, "done", property(lambda self: len(labels) % 3 == 0))
+    labels.clear()
+    done = record_recipe(load_recipe("gear-insertion-dagger"), tmp_path / "done", episodes=1, seed=3,
+                         settings=EnvSettings(resolution=32), sources=sources, progress=False)["episodes"]
+    assert [(e["outcome"], e["success"], e["length"]) for e in done] == [("done", True, 3)]
 
 
 def test_a_move_dagger_round_starts_after_the_pick_and_labels_steps_from_the_hand(transport_demos, tmp_path):

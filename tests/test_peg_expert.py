@@ -6,7 +6,9 @@ from __future__ import annotations
 from itertools import groupby
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
+import torch
 
 from policy_composer.data.recipes import load_recipe
 from policy_composer.tasks.peg_insertion_side.env import make_env
@@ -14,8 +16,10 @@ from policy_composer.tasks.peg_insertion_side.expert import (
     EXPERT_PHASES,
     ExpertConfig,
     PegInsertionSideExpert,
+    pose_error,
     run_episode,
 )
+from policy_composer.tasks.peg_insertion_side.scene import pose0
 from policy_composer.tasks.peg_insertion_side.spec import ExpertSettings
 
 STEP_BUDGET = 150  # ManiSkill's episode is 100 control steps; the expert needs about 85 (at most about 105)
@@ -78,3 +82,32 @@ def test_it_refuses_more_than_one_environment_and_other_control_modes():
         PegInsertionSideExpert(SimpleNamespace(num_envs=2, control_mode="pd_joint_pos"))
     with pytest.raises(ValueError, match="pd_joint_pos"):
         PegInsertionSideExpert(SimpleNamespace(num_envs=1, control_mode="pd_ee_delta_pose"))
+
+
+def test_labels_from_the_arm_are_the_experts_own_steps_and_never_wind_up(env):
+    """DAgger's labels (`labels = "arm"`) while a learner holds the arm still in front of the hole: moves of the hand
+    without a turn (the learned insertion keeps its hand's orientation), each push the step the expert's own command
+    takes, an insert step along the hole's axis, the same at the fifth step as at the first (a learner adds its steps
+    to its command, so a label that grew while the arm stood would push ever harder)."""
+    settings = load_recipe("peg-insertion-dagger").expert
+    assert settings.labels == "arm"
+    config = settings.config()
+    expert = PegInsertionSideExpert(env, config)
+    env.reset(seed=5, options={"start": "pre_insertion"})
+    expert.reset(5)
+    u = env.unwrapped
+    qpos = u.agent.robot.get_qpos()[0].numpy()
+    hold = torch.as_tensor([*qpos[:7], -1.0], dtype=torch.float32)[None]
+    hole = pose0(u.box_hole_pose).to_transformation_matrix()[:3, :3]
+    pushes = []
+    for _ in range(6):
+        pushing = expert.phase == "insert"  # the first step lines the peg up
+        label = expert.act().numpy()
+        target, hand = expert._tcp_of(np.concatenate([label[:7], qpos[7:]])), pose0(u.agent.tcp.pose)
+        step = hole.T @ (target.p - hand.p)
+        assert np.linalg.norm(step) <= config.align_step + 1e-4
+        assert pose_error(target, hand)[1] < 1e-3  # a move the learner can make: it keeps its hand's orientation
+        if pushing:
+            pushes.append(float(step[0]))
+        env.step(hold)
+    assert pushes == pytest.approx([config.insert_step] * 5, abs=1.5e-3), pushes

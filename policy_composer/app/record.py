@@ -235,7 +235,8 @@ class EpisodeRecorder:
             obs, *_ = buffer.step(controller.act(obs), label=label)
             if controller.done(obs) or controller.backing_off or expert.done:
                 break
-        outcome = "failed" if controller.backing_off else controller.outcome.value
+        # The expert done: the policy reached the subtask's goal, as the expert judges it, before it terminated.
+        outcome = "failed" if controller.backing_off else "done" if expert.done else controller.outcome.value
         if buffer.buffered_frames == 0 or (recipe.keep == "success" and outcome != "done"):
             buffer.discard_episode()
             return None

@@ -95,7 +95,10 @@ class ExpertConfig:
     noise: float = 0.0
     noise_steps: float = 10.0  # the offset's correlation time, control steps
     # Step from where the hand is (the measured TCP), and follow the carry's plan from the waypoint nearest the
-    # measured joints, not from the expert's own last command: labels for states another policy drives (DAgger).
+    # measured joints, not from the expert's own last command: labels for states another policy drives (DAgger). Each
+    # label is then a move the learner can make (see _move_peg) the size of the expert's own command's steps (an
+    # insert_step along the axis, the head's measured error across it): a learner adds its steps to its command, and
+    # that sum is the integral action, so the expert keeps none of its own.
     from_arm: bool = False
 
 
@@ -206,13 +209,20 @@ class PegInsertionSideExpert:
         (the measured peg-in-hand transform), corrected by the integral of the peg's lateral and angular error off the
         hole's axis (the arm's static sag under the held peg, which a target from the measured state alone leaves),
         reached at most align_step and max_rot_step a control step from the last command. The error along the axis is
-        not integrated: there it is the arm's lag while pushing, which insert_lead bounds."""
+        not integrated: there it is the arm's lag while pushing, which insert_lead bounds.
+
+        Labelling a learner (from_arm), the hand is only moved, not turned: the learned insertion keeps its hand's
+        orientation (`Scene.hand_quat`), so the label is the move that puts the peg's head where `peg_target` has it."""
         cfg = self.config
-        peg = self._peg()
-        along = (self._hole().inv() * peg).p[0]
-        on_axis = self._hole() * sapien.Pose([along, 0.0, 0.0])
-        self._bias = step_pose(peg, on_axis, np.inf, np.inf, cfg.integral_gain) * peg.inv() * self._bias
-        hand = self._bias * peg_target * peg.inv() * self._tcp()
+        peg, tcp = self._peg(), self._tcp()
+        if cfg.from_arm:
+            head = sapien.Pose([self._half_length, 0.0, 0.0])
+            hand = sapien.Pose(tcp.p + (peg_target * head).p - (peg * head).p, tcp.q)
+        else:
+            along = (self._hole().inv() * peg).p[0]
+            on_axis = self._hole() * sapien.Pose([along, 0.0, 0.0])
+            self._bias = step_pose(peg, on_axis, np.inf, np.inf, cfg.integral_gain) * peg.inv() * self._bias
+            hand = self._bias * peg_target * peg.inv() * tcp
         self._cmd = step_pose(self._command_base(), hand, cfg.align_step, cfg.max_rot_step)
         return self._cmd
 
@@ -312,13 +322,15 @@ class PegInsertionSideExpert:
 
     def _insert_target(self) -> sapien.Pose:
         """The peg's target on the hole's axis, its head advanced by insert_step a control step, never more than
-        insert_lead steps ahead of the measured head (with from_arm: that far ahead of it, about where the expert's
-        own target runs while it pushes, the arm lagging); the hand's target follows from the measured grasp, so the
-        head's and the axis's lateral errors are corrected as it goes."""
+        insert_lead steps ahead of the measured head (with from_arm: one step ahead of it, the step its own command
+        takes); the hand's target follows from the measured grasp, so the head's and the axis's lateral errors are
+        corrected as it goes."""
         cfg = self.config
         head_x = float(self.head_in_hole()[0])
-        most = head_x + cfg.insert_lead * cfg.insert_step
-        self._push_x = most if cfg.from_arm else min(self._push_x + cfg.insert_step, most)
+        if cfg.from_arm:
+            self._push_x = head_x + cfg.insert_step
+        else:
+            self._push_x = min(self._push_x + cfg.insert_step, head_x + cfg.insert_lead * cfg.insert_step)
         return self._move_peg(self.peg_goal(self._push_x))
 
     def _tcp_of(self, q9: np.ndarray) -> sapien.Pose:

@@ -104,9 +104,8 @@ SPEC = TaskSpec(
     fixed_cameras=("base_camera",),
     controller_rollouts="peg-controller-rollouts",
     corrections={"insert": "peg-insertion-dagger"},
-    # What the expert's corrections correct, how high the peg's head hangs against a hole in the box's side, the hand
-    # camera looking down cannot see: two rounds lifted the CNN insertion a little and not the composition, for about
-    # two thirds of the job's time again (the figures: docs/task.md).
+    # A round neither lifts nor lowers the CNN insertion, for a third of the job's time again: what fails it is a peg
+    # tilted in the fingers, which the insertion, keeping its hand's turn, cannot seat (the figures: docs/task.md).
     dagger_rounds=0,
     episode_steps=EPISODE_LIMIT,
     # The CNN insertion seated within 36 steps whenever it did in the quick job's compositions; a longer budget only
