@@ -95,10 +95,9 @@ class ExpertConfig:
     noise: float = 0.0
     noise_steps: float = 10.0  # the offset's correlation time, control steps
     # Step from where the hand is (the measured TCP), and follow the carry's plan from the waypoint nearest the
-    # measured joints, not from the expert's own last command: labels for states another policy drives (DAgger). Each
-    # label is then a move the learner can make (see _move_peg) the size of the expert's own command's steps (an
-    # insert_step along the axis, the head's measured error across it): a learner adds its steps to its command, and
-    # that sum is the integral action, so the expert keeps none of its own.
+    # measured joints, not from the expert's own last command: labels for states another policy drives (DAgger), each a
+    # move the learner can make, as large as the expert's own steps (see _move_peg and _insert_target). A learner adds
+    # its steps to its command, which is the integral action, so the expert keeps none of its own.
     from_arm: bool = False
 
 
