@@ -179,7 +179,7 @@ class PegInsertionSideExpert:
 
     def head_in_hole(self) -> np.ndarray:
         """The peg's head in the hole's frame (x along the axis into the box)."""
-        return (self._hole().inv() * self._peg() * sapien.Pose([self._half_length, 0.0, 0.0])).p
+        return (self._hole().inv() * self._peg() * self._head).p
 
     # ------------------------------------------------------------------ commands
     def _solve(self, target: sapien.Pose, seed: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -215,8 +215,7 @@ class PegInsertionSideExpert:
         cfg = self.config
         peg, tcp = self._peg(), self._tcp()
         if cfg.from_arm:
-            head = sapien.Pose([self._half_length, 0.0, 0.0])
-            hand = sapien.Pose(tcp.p + (peg_target * head).p - (peg * head).p, tcp.q)
+            hand = sapien.Pose(tcp.p + (peg_target * self._head).p - (peg * self._head).p, tcp.q)
         else:
             along = (self._hole().inv() * peg).p[0]
             on_axis = self._hole() * sapien.Pose([along, 0.0, 0.0])
@@ -231,6 +230,7 @@ class PegInsertionSideExpert:
         pre-insertion start) starts at the alignment."""
         env, cfg = self.env, self.config
         self._half_length = float(env.peg_half_sizes[0, 0])
+        self._head = sapien.Pose([self._half_length, 0.0, 0.0])  # the peg's head in its frame
         self._half_width = float(env.peg_half_sizes[0, 1])
         self._box_half_depth = float(box_half_depth(env)[0])
         episode_seed = seed if seed is not None else int(env._episode_seed[0])
