@@ -191,6 +191,8 @@ class TaskSpec:
     # What the robot knows of each episode's scene, as its planner does (observation.environment_state, `extra.scene`
     # of an observation): empty where the scene the controllers know is the same in every episode.
     scene_names: tuple[str, ...] = ()
+    # Counts the changes to what the task's recordings hold (its scene, its labels): the main job records them again.
+    revision: int = 0
 
 
 @dataclass(frozen=True)
@@ -230,6 +232,10 @@ class TaskDescription:
     expert_starts: Mapping[str, str] = field(default_factory=dict)
     start_expert: Callable[[Any], Any] | None = None  # env -> the expert that takes the scene to `expert_starts`
     step_unobserved: Callable[[Any, torch.Tensor], None] | None = None  # (env, flat action): physics, no renders
+    # scenes (N, len(spec.scene_names)) -> (N, 3, 3): the turn, in the hand's frame, into the frame in which the part
+    # sits in the hand as in a grasp straight down, whatever the grasp planned (None: the hand's own frame). A
+    # learned controller's moves "in the hand's frame" are in it, the same move for the same grasp of the part.
+    grasp_turn: Callable[[np.ndarray], np.ndarray] | None = None
 
     def kinematics(self, state: torch.Tensor, scene: torch.Tensor | None = None) -> torch.Tensor:
         """(N, len(extra_proprioception)) float32: what the task's kinematics add to joint states (N, S), given the
@@ -242,6 +248,12 @@ class TaskDescription:
                              "again with it")
         scene = None if scene is None else scene.double().cpu().numpy()
         return state.new_tensor(self.proprioception(state.double().cpu().numpy(), scene)).float()
+
+    def grasp_turns(self, scene: torch.Tensor | None, n: int) -> np.ndarray:
+        """(n, 3, 3): `grasp_turn` of n scenes (N, len(spec.scene_names)); the identity where the task has none."""
+        if self.grasp_turn is None or scene is None:
+            return np.broadcast_to(np.eye(3), (n, 3, 3))
+        return self.grasp_turn(scene.double().cpu().numpy())
 
     def settings(self, resolution: int, **settings):
         """The task's env settings at `resolution`, with those of `settings` the task has (a gear's clearance)."""

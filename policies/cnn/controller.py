@@ -28,8 +28,9 @@ MAX_LEAD = 0.10
 class CNNController(LearnedController):
     """Each step: the policy's most probable action, added to the controller's running command (the policy
     predicts changes of the command) and turned into the arm's joint targets. A policy in the "hand"
-    action space moves the commanded TCP, the hand kept at the orientation its scene says (`Scene.hand_quat`), by IK
-    from the measured joints."""
+    action space moves the commanded TCP in the hand's frame as its grasp holds the part
+    (`TaskDescription.grasp_turns`), the hand kept at the orientation its scene says (`Scene.hand_quat`), by IK from
+    the measured joints."""
 
     def __init__(self, env, policy: CNNPolicy, subtask: Subtask | None = None, max_steps: int | None = None):
         subtask = subtask or task_of(env).subtasks[policy.config.subtask]
@@ -45,6 +46,7 @@ class CNNController(LearnedController):
     def reset(self, obs, seed=None):
         super().reset(obs, seed)
         self._quat = self.scene.hand_quat(self.ik, np0(self.ik.arm.robot.get_qpos()))
+        self._turn = self.task.grasp_turns(obs.get("extra", {}).get("scene"), 1)[0]
         self._command = self.scene.tcp() if self.policy.config.action_space == "hand" else self.arm_qpos(obs)
 
     def predict(self, obs):
@@ -58,7 +60,7 @@ class CNNController(LearnedController):
         if self.policy.config.action_space == "joint":
             self._command = self._command + a[:7]
             return self._command.copy(), gripper
-        self._command, q = hand_step(self.ik, self._command, a[:3], self._quat)
+        self._command, q = hand_step(self.ik, self._command, self._turn @ a[:3], self._quat)
         return q, gripper
 
 

@@ -51,11 +51,12 @@ def previous_commands(state: torch.Tensor, action: torch.Tensor, episode_index: 
     return prev
 
 
-def action_target(state: torch.Tensor, action: torch.Tensor, previous: torch.Tensor,
-                  action_space: str) -> torch.Tensor:
+def action_target(state: torch.Tensor, action: torch.Tensor, previous: torch.Tensor, action_space: str,
+                  turn: np.ndarray | None = None) -> torch.Tensor:
     """What the policy predicts from a recorded frame, in `action_space` (see ACTION_SPACES), with the gripper
     command last: the change from the previous command, not from the measured joints, since the gap between a
-    command and where the arm is depends on the arm's velocity, which one image does not show."""
+    command and where the arm is depends on the arm's velocity, which one image does not show. In the "hand" space
+    the move is in the hand's frame turned by `turn` (N, 3, 3; `TaskDescription.grasp_turns`) where given."""
     gripper = action[..., 7:8]
     if action_space == "joint":
         return torch.cat([action[..., :7] - previous[..., :7], gripper], dim=-1)
@@ -63,6 +64,8 @@ def action_target(state: torch.Tensor, action: torch.Tensor, previous: torch.Ten
     _, R_now = fk.tcp(state[..., :7].double().numpy())
     p_prev, _ = fk.tcp(previous[..., :7].double().numpy())
     p_target, _ = fk.tcp(action[..., :7].double().numpy())
+    if turn is not None:
+        R_now = R_now @ turn
     in_hand = np.einsum("nji,nj->ni", R_now, p_target - p_prev)  # R^T (p_target - p_prev)
     return torch.cat([torch.as_tensor(in_hand, dtype=torch.float32), gripper], dim=-1)
 
@@ -84,7 +87,7 @@ def load_demonstrations(root: str | Path | Sequence[str | Path], config: CNNPoli
     accepted = tuple(filter(None, (recipe, spec.corrections.get(config.subtask))))
     check_recipe(root, accepted, f"the CNN {config.subtask} policy")
     required = {"observation.state": (len(spec.state_names),), "action": (len(spec.action_names),), "stage": (1,)}
-    scene = "observation.environment_state" if config.proprioception == "scene" and spec.scene_names else None
+    scene = "observation.environment_state" if spec.scene_names else None
     if scene:
         required[scene] = (len(spec.scene_names),)
     if config.offset_weight:
@@ -100,9 +103,11 @@ def load_demonstrations(root: str | Path | Sequence[str | Path], config: CNNPoli
     if not keep.any():
         raise DatasetError(f"{root} has no frames of the {config.subtask} subtask (stages {list(stages)}); record "
                            f"{recipe} for it")
+    known = frames[scene][keep] if scene else None
     data = {"image": frames[image_key(config.camera)][keep],
-            "state": policy_state(state[keep], config, frames[scene][keep] if scene else None),
-            "action": action_target(state[keep], action[keep], prev[keep], config.action_space)}
+            "state": policy_state(state[keep], config, known),
+            "action": action_target(state[keep], action[keep], prev[keep], config.action_space,
+                                    get_task(config.task).grasp_turns(known, int(keep.sum())))}
     if config.offset_weight:
         data["offset"] = frames["gear_offset"][keep]
     return data

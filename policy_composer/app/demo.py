@@ -68,9 +68,10 @@ def stage_name(recipe: str) -> str:
 
 
 def env_key(task: str, resolution: int) -> dict:
-    """What a stage's results depend on of the env: the gear's settings and revision, or another task's name."""
+    """What a stage's results depend on of the env: the gear's settings and revision, or another task's name and
+    revision."""
     if task != DEFAULT_TASK:
-        return {"resolution": resolution, "task": task}
+        return {"resolution": resolution, "task": task, "task_revision": get_spec(task).revision}
     return {"resolution": resolution, "clearance_mm": 2.0, "task_revision": TASK_REVISION}
 
 

@@ -13,7 +13,8 @@ plane and within the hole's radius; it has no bound the other way, so a peg push
 
 The env is made by mani-skill itself (``gym.make``), not copied: this module reads its state, and one wrapper adds
 what the library reads of a task: ``extra.state`` (the arm's joints and the gripper's width, its
-`observation.state`), ``extra.scene`` (the hole's pose and the peg's size, as the planner knows them), the strict
+`observation.state`), ``extra.scene`` (the hole's pose, the peg's size and the grasp planned, as the planner knows
+them), the strict
 success as ``info["success"]`` (ManiSkill's own beside it as ``info["success_maniskill"]``), the stage, and a second
 start state (``reset(options={"start": "pre_insertion"})``: the peg in the hand in front of the hole, where the
 insertion begins).
@@ -34,6 +35,7 @@ from policy_composer.tasks.peg_insertion_side.flags import (  # noqa: F401  (the
     stage_of,
     strict_success,
 )
+from policy_composer.tasks.peg_insertion_side.scene import plan_grasp, planned_grasp_tilt
 from policy_composer.tasks.peg_insertion_side.spec import (  # noqa: F401  (CAMERA_NAMES and PREDICATES: the task's names)
     CAMERA_NAMES,
     CONTROL_MODE,
@@ -50,8 +52,9 @@ class ArmState(gym.Wrapper):
 
     - `extra.state`, (B, 8): the arm's 7 joint angles and the gripper's width (both fingers' positions summed), as the
       library's controllers and recordings read a task's joint state;
-    - `extra.scene`, (B, 9): the hole's pose in the arm's base frame (position, quaternion wxyz) and the peg's
-      half-length and half-width, what the planner knows of the scene (`observation.environment_state`);
+    - `extra.scene`, (B, 10): the hole's pose in the arm's base frame (position, quaternion wxyz), the peg's
+      half-length and half-width, and the tilt of the grasp planned this episode (`scene.plan_grasp`; 0 until one
+      is), what the planner knows of the scene (`observation.environment_state`);
     - `info["success"]`: the strict success (ManiSkill's is `info["success_maniskill"]`), and `info["stage"]`;
     - `reset(options={"start": "pre_insertion"})`: the scripted expert picks the peg up and carries it to the
       pre-insertion pose, unobserved (no camera renders), and the episode starts there, at step 0, with the carry's
@@ -63,6 +66,7 @@ class ArmState(gym.Wrapper):
         options = dict(options or {})
         start = options.pop("start", "table")
         obs, info = self.env.reset(seed=seed, options=options)
+        plan_grasp(self.env, 0.0)
         if start == "pre_insertion":
             self._carry_to_the_hole(seed)
             info = self.env.unwrapped.get_info()
@@ -83,8 +87,8 @@ class ArmState(gym.Wrapper):
         extra = obs.setdefault("extra", {})
         extra["state"] = torch.cat([qpos[:, :7], qpos[:, 7:8] + qpos[:, 8:9]], dim=-1)
         u = self.env.unwrapped
-        extra["scene"] = torch.cat([(u.agent.robot.pose.inv() * u.box_hole_pose).raw_pose, u.peg_half_sizes[:, :2]],
-                                   dim=-1)
+        extra["scene"] = torch.cat([(u.agent.robot.pose.inv() * u.box_hole_pose).raw_pose, u.peg_half_sizes[:, :2],
+                                    planned_grasp_tilt(u)[:, None]], dim=-1)
         return obs
 
     def _info(self, info: dict) -> dict:

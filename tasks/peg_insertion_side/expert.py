@@ -51,7 +51,7 @@ from policy_composer.policies.mp.planning import SceneCollisionModel, plan_rrt_c
 from policy_composer.tasks.base import PlanningError, np0
 from policy_composer.tasks.panda import GRIPPER_CLOSED, GRIPPER_OPEN, JOINT_HIGH, JOINT_LOW, ArmIK, hand_down_quat, se3
 from policy_composer.tasks.peg_insertion_side.flags import HOLE_ENTRY, box_half_depth, strict_success
-from policy_composer.tasks.peg_insertion_side.scene import box_obstacles, pose0
+from policy_composer.tasks.peg_insertion_side.scene import box_obstacles, plan_grasp, pose0, tilt_quat
 from policy_composer.tasks.peg_insertion_side.spec import EXPERT_PHASES  # noqa: F401  (its phases, in order)
 from policy_composer.tasks.scene import HeldObject, table_obstacle
 
@@ -387,7 +387,7 @@ class PegInsertionSideExpert:
             # for a positive pitch.
             x = -axis if turned else axis
             for pitch in cfg.grasp_pitches:
-                quat = qmult(hand_down_quat(x), axangle2quat([0.0, 1.0, 0.0], -pitch if turned else pitch))
+                quat = qmult(hand_down_quat(x), tilt_quat(-pitch if turned else pitch))
                 for shift in cfg.grasp_offset_shifts:
                     offset = float(np.clip(default + shift, 0.04, self._half_length - 0.02))
                     candidates.append(((turned, pitch, offset), sapien.Pose(peg.p - axis * offset, quat)))
@@ -395,6 +395,7 @@ class PegInsertionSideExpert:
         self.grasp_feasible = chosen is not None  # whether a grasp passed the checks (else the preferred one is tried)
         ((self.grasp_turned, self.grasp_pitch, self.grasp_offset), self._grasp), self._q_pre = \
             chosen or (candidates[0], None)
+        plan_grasp(self.env, -self.grasp_pitch if self.grasp_turned else self.grasp_pitch)
 
     def _feasible(self, grasp: sapien.Pose) -> np.ndarray | None:
         """The arm at the pre-insertion pose after `grasp` (9), or None where IK or the collision model (table, box,

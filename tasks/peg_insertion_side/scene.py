@@ -1,7 +1,8 @@
 """PegInsertionSide-v1's scene as the arm's controllers know it (world frame): their hand from its joints, and what the
 task lets the planner know: where the peg lies (given from the simulator, with `planner_noise` in the table's plane
 where the figures ask for it) and where the box and its hole are. Where the peg sits in the hand once grasped, the
-planner does not know: it assumes the grasp it planned."""
+planner does not know: it assumes the grasp that was planned, the hand straight down or tilted back about the
+fingers' closing axis (`planned_grasp_tilt`)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,8 @@ import coal
 import numpy as np
 import pinocchio as pin
 import sapien
+import torch
+from transforms3d.quaternions import axangle2quat
 
 from policy_composer.tasks.base import np0
 from policy_composer.tasks.panda import se3
@@ -24,6 +27,25 @@ EMPTY_HAND_GAP = 0.002
 def holds_nothing(fingers_wider_than_peg: float) -> bool:
     """Whether fingers this much wider than the peg (m, from the gripper's joints) hold nothing."""
     return fingers_wider_than_peg > EMPTY_HAND_GAP
+
+
+def plan_grasp(env, tilt: float | torch.Tensor) -> None:
+    """Let the robot know the grasp planned this episode: the hand's tilt (rad) about the TCP's y, the fingers'
+    closing axis, from straight down (0 until a grasp is planned; the library's pick-up grasps straight down)."""
+    u = env.unwrapped
+    u.planned_grasp_tilt = torch.as_tensor(tilt, dtype=torch.float32, device=u.device).expand(u.num_envs).clone()
+
+
+def planned_grasp_tilt(env) -> torch.Tensor:
+    """(B,) the tilt of the grasp planned this episode (see `plan_grasp`)."""
+    u = env.unwrapped
+    tilt = getattr(u, "planned_grasp_tilt", None)
+    return torch.zeros(u.num_envs, device=u.device) if tilt is None else tilt
+
+
+def tilt_quat(tilt: float) -> np.ndarray:
+    """The turn (wxyz) of a hand tilted by `tilt` about the TCP's y from straight down."""
+    return axangle2quat([0.0, 1.0, 0.0], tilt)
 
 
 def pose0(pose) -> sapien.Pose:
@@ -106,19 +128,20 @@ class PegScene:
 
     def head_along_tcp_x(self) -> float:
         """+1 where the TCP's x points toward the peg's head, -1 where toward its tail (the hand grasps across the peg
-        either way round)."""
+        either way round, tilted at most 0.5 rad)."""
         tcp_x = pose0(self.env.agent.tcp.pose).to_transformation_matrix()[:3, 0]
         return 1.0 if float(tcp_x @ self.planner_peg().to_transformation_matrix()[:3, 0]) >= 0 else -1.0
 
     def peg_in_hand(self, sign: float | None = None) -> sapien.Pose:
         """Where the planned grasp holds the peg, in the TCP frame: across the fingers' centre, `grasp_offset` back
-        from its centre, its axis along the TCP's x (toward its head, sign +1, or its tail, -1; by default as the hand
-        took it)."""
+        from its centre, its axis along the TCP's x untilted by the grasp's tilt (toward its head, sign +1, or its
+        tail, -1; by default as the hand took it)."""
         sign = sign or self.head_along_tcp_x()
         # The TCP's z points down into the hand, the lying peg's z up: half a turn about the TCP's x (the peg's head
         # along it) or its y (the head the other way).
         turn = [0.0, 1.0, 0.0, 0.0] if sign > 0 else [0.0, 0.0, 1.0, 0.0]
-        return sapien.Pose([sign * grasp_offset(self.half_length), 0.0, 0.0], turn)
+        straight = sapien.Pose([sign * grasp_offset(self.half_length), 0.0, 0.0], turn)
+        return sapien.Pose(q=tilt_quat(-float(planned_grasp_tilt(self.env)[0]))) * straight
 
     def held_head_x(self) -> float:
         """The peg's head along the hole's axis from its centre plane (m), where the planned grasp puts it."""

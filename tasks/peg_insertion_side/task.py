@@ -11,7 +11,7 @@ from policy_composer.tasks.base import TaskDescription
 from policy_composer.tasks.peg_insertion_side.env import ArmState, make_env, step_unobserved
 from policy_composer.tasks.peg_insertion_side.expert import PegInsertionSideExpert
 from policy_composer.tasks.peg_insertion_side.flags import predicates, stage_of
-from policy_composer.tasks.peg_insertion_side.kinematics import HAND_IN_HOLE, hand_in_hole, rule_out
+from policy_composer.tasks.peg_insertion_side.kinematics import HAND_IN_HOLE, grasp_turn, hand_in_hole, rule_out
 from policy_composer.tasks.peg_insertion_side.scene import PegScene, pose0
 from policy_composer.tasks.peg_insertion_side.spec import EPISODE_LIMIT, SPEC
 from policy_composer.tasks.peg_insertion_side.subtasks import INSERTIONS, SUBTASKS, TASK_SEQUENCE
@@ -98,4 +98,5 @@ TASK = TaskDescription(
     expert_starts={"move": "move"},
     start_expert=PegInsertionSideExpert,
     step_unobserved=step_unobserved,
+    grasp_turn=grasp_turn,
 )
