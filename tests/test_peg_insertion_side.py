@@ -311,29 +311,40 @@ def test_a_learned_insertion_holds_the_peg_along_the_holes_axis_as_planned(env):
     assert np.allclose(peg, hole, atol=1e-6)  # the planned peg lies as the hole does, head first
 
 
-def test_the_robot_knows_the_tilt_of_the_grasp_it_planned(env):
+def _planned_head_error(obs, u) -> np.ndarray:
+    """Where the hand's kinematics put the peg's head, less where it is, in the hole's frame (m)."""
+    known = hand_in_hole(obs["extra"]["state"].numpy(), obs["extra"]["scene"].numpy())[0]
+    return known[6:9] - ((u.box_hole_pose.inv() * u.peg.pose).p[0].numpy() + [float(u.peg_half_sizes[0, 0]), 0, 0])
+
+
+def test_the_robot_knows_the_grasp_it_planned(env):
     """Where a hand straight down would meet the box with its forearm, the expert grasps tilted back 0.3 rad (seed
-    3010). The scene the robot knows says so, and the planned grasp is then where the peg truly lies in the hand (the
-    straight-down assumption had it 17 degrees off): the hand's kinematics put the head where it is, the hand is kept
-    at the turn that lies the peg along the hole's axis, and a learned insertion's moves "in the hand's frame" go along
-    the peg, as in a grasp straight down. A reset from the table forgets the last episode's grasp."""
+    3010); where the library's grasp would not reach, 17 mm farther back along the peg (seed 5). The scene the robot
+    knows says so, and the planned grasp is then where the peg truly lies in the hand (the library's own grasp had it
+    17 degrees off, and the head 15 mm off): the hand's kinematics put the head where it is, the hand is kept at the
+    turn that lies the peg along the hole's axis, and a learned insertion's moves "in the hand's frame" go along the
+    peg, as in a grasp straight down. A reset from the table forgets the last episode's grasp."""
     u = env.unwrapped
+    tilt, offset = SCENE_NAMES.index("grasp_tilt"), SCENE_NAMES.index("grasp_offset")
     obs, _ = env.reset(seed=3010, options={"start": "pre_insertion"})
-    assert float(obs["extra"]["scene"][0, SCENE_NAMES.index("grasp_tilt")]) == pytest.approx(0.3)
+    assert float(obs["extra"]["scene"][0, tilt]) == pytest.approx(0.3)
     scene, true = PegScene(u), pose0(u.peg.pose).to_transformation_matrix()[:3, :3]
     planned = (pose0(u.agent.tcp.pose) * scene.peg_in_hand()).to_transformation_matrix()[:3, :3]
     assert np.degrees(np.arccos(planned[:, 0] @ true[:, 0])) < 2.0
-    known = hand_in_hole(obs["extra"]["state"].numpy(), obs["extra"]["scene"].numpy())[0]
-    head = (u.box_hole_pose.inv() * u.peg.pose).p[0].numpy() + [float(u.peg_half_sizes[0, 0]), 0, 0]
-    assert np.linalg.norm(known[6:9] - head) < 0.01, (known[6:9], head)
+    assert np.linalg.norm(_planned_head_error(obs, u)) < 0.01
     kept = sapien.Pose(scene.tcp(), scene.hand_quat(None, u.agent.robot.get_qpos()[0].numpy()))
     hole = scene.hole().to_transformation_matrix()[:3, :3]
     assert np.allclose((kept * scene.peg_in_hand()).to_transformation_matrix()[:3, :3], hole, atol=1e-6)
     turn = get_task("peg-insertion-side").grasp_turns(obs["extra"]["scene"], 1)[0]
     hand = pose0(u.agent.tcp.pose).to_transformation_matrix()[:3, :3]
     assert (hand @ turn)[:, 0] @ true[:, 0] > np.cos(np.radians(2.0)) > hand[:, 0] @ true[:, 0] + 0.03
-    obs, _ = env.reset(seed=3010)
-    assert float(obs["extra"]["scene"][0, SCENE_NAMES.index("grasp_tilt")]) == 0.0
+    obs, _ = env.reset(seed=5, options={"start": "pre_insertion"})
+    own = float(np.clip(float(u.peg_half_sizes[0, 0]) / 2 + 0.01, 0.05, None))  # the library's pick-up's grasp
+    assert float(obs["extra"]["scene"][0, offset]) > own + 0.015 and float(obs["extra"]["scene"][0, tilt]) == 0.0
+    assert np.linalg.norm(_planned_head_error(obs, u)) < 0.005
+    obs, _ = env.reset(seed=5)
+    assert float(obs["extra"]["scene"][0, tilt]) == 0.0
+    assert float(obs["extra"]["scene"][0, offset]) == pytest.approx(own)
 
 
 def test_fingers_wider_than_the_peg_hold_nothing():

@@ -90,6 +90,10 @@ class LeRobotPolicyController(LearnedController):
             elif key == "observation.state" and tuple(feature.shape) != (len(task.spec.state_names),):
                 raise CheckpointError(f"the policy at {path} takes a state of shape {tuple(feature.shape)}, "
                                       f"{task.spec.env_id} gives ({len(task.spec.state_names)},)")
+            elif key == "observation.environment_state" and tuple(feature.shape) != (len(task.spec.scene_names),):
+                raise CheckpointError(f"the policy at {path} takes a scene of shape {tuple(feature.shape)}, "
+                                      f"{task.spec.env_id} gives ({len(task.spec.scene_names)},): train it again on "
+                                      "recordings made by this version")
         if tuple(cfg.output_features["action"].shape) != (len(task.spec.action_names),):
             raise CheckpointError(f"the policy at {path} outputs actions of shape "
                                   f"{tuple(cfg.output_features['action'].shape)}, "

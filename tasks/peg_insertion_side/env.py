@@ -35,7 +35,7 @@ from policy_composer.tasks.peg_insertion_side.flags import (  # noqa: F401  (the
     stage_of,
     strict_success,
 )
-from policy_composer.tasks.peg_insertion_side.scene import plan_grasp, planned_grasp_tilt
+from policy_composer.tasks.peg_insertion_side.scene import plan_grasp, planned_grasp
 from policy_composer.tasks.peg_insertion_side.spec import (  # noqa: F401  (CAMERA_NAMES and PREDICATES: the task's names)
     CAMERA_NAMES,
     CONTROL_MODE,
@@ -52,9 +52,9 @@ class ArmState(gym.Wrapper):
 
     - `extra.state`, (B, 8): the arm's 7 joint angles and the gripper's width (both fingers' positions summed), as the
       library's controllers and recordings read a task's joint state;
-    - `extra.scene`, (B, 10): the hole's pose in the arm's base frame (position, quaternion wxyz), the peg's
-      half-length and half-width, and the tilt of the grasp planned this episode (`scene.plan_grasp`; 0 until one
-      is), what the planner knows of the scene (`observation.environment_state`);
+    - `extra.scene`, (B, 11): the hole's pose in the arm's base frame (position, quaternion wxyz), the peg's
+      half-length and half-width, and the grasp planned this episode (its tilt and offset, `scene.plan_grasp`; the
+      library's pick-up's until one is), what the planner knows of the scene (`observation.environment_state`);
     - `info["success"]`: the strict success (ManiSkill's is `info["success_maniskill"]`), and `info["stage"]`;
     - `reset(options={"start": "pre_insertion"})`: the scripted expert picks the peg up and carries it to the
       pre-insertion pose, unobserved (no camera renders), and the episode starts there, at step 0, with the carry's
@@ -66,7 +66,7 @@ class ArmState(gym.Wrapper):
         options = dict(options or {})
         start = options.pop("start", "table")
         obs, info = self.env.reset(seed=seed, options=options)
-        plan_grasp(self.env, 0.0)
+        plan_grasp(self.env)
         if start == "pre_insertion":
             self._carry_to_the_hole(seed)
             info = self.env.unwrapped.get_info()
@@ -88,7 +88,7 @@ class ArmState(gym.Wrapper):
         extra["state"] = torch.cat([qpos[:, :7], qpos[:, 7:8] + qpos[:, 8:9]], dim=-1)
         u = self.env.unwrapped
         extra["scene"] = torch.cat([(u.agent.robot.pose.inv() * u.box_hole_pose).raw_pose, u.peg_half_sizes[:, :2],
-                                    planned_grasp_tilt(u)[:, None]], dim=-1)
+                                    planned_grasp(u)], dim=-1)
         return obs
 
     def _info(self, info: dict) -> dict:

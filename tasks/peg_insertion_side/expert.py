@@ -395,7 +395,7 @@ class PegInsertionSideExpert:
         self.grasp_feasible = chosen is not None  # whether a grasp passed the checks (else the preferred one is tried)
         ((self.grasp_turned, self.grasp_pitch, self.grasp_offset), self._grasp), self._q_pre = \
             chosen or (candidates[0], None)
-        plan_grasp(self.env, -self.grasp_pitch if self.grasp_turned else self.grasp_pitch)
+        plan_grasp(self.env, -self.grasp_pitch if self.grasp_turned else self.grasp_pitch, self.grasp_offset)
 
     def _feasible(self, grasp: sapien.Pose) -> np.ndarray | None:
         """The arm at the pre-insertion pose after `grasp` (9), or None where IK or the collision model (table, box,

@@ -1,8 +1,8 @@
 """PegInsertionSide-v1's scene as the arm's controllers know it (world frame): their hand from its joints, and what the
 task lets the planner know: where the peg lies (given from the simulator, with `planner_noise` in the table's plane
 where the figures ask for it) and where the box and its hole are. Where the peg sits in the hand once grasped, the
-planner does not know: it assumes the grasp that was planned, the hand straight down or tilted back about the
-fingers' closing axis (`planned_grasp_tilt`)."""
+planner does not know: it assumes the grasp that was planned (`plan_grasp`): where along the peg, and the hand
+straight down or tilted back about the fingers' closing axis."""
 
 from __future__ import annotations
 
@@ -29,20 +29,6 @@ def holds_nothing(fingers_wider_than_peg: float) -> bool:
     return fingers_wider_than_peg > EMPTY_HAND_GAP
 
 
-def plan_grasp(env, tilt: float | torch.Tensor) -> None:
-    """Let the robot know the grasp planned this episode: the hand's tilt (rad) about the TCP's y, the fingers'
-    closing axis, from straight down (0 until a grasp is planned; the library's pick-up grasps straight down)."""
-    u = env.unwrapped
-    u.planned_grasp_tilt = torch.as_tensor(tilt, dtype=torch.float32, device=u.device).expand(u.num_envs).clone()
-
-
-def planned_grasp_tilt(env) -> torch.Tensor:
-    """(B,) the tilt of the grasp planned this episode (see `plan_grasp`)."""
-    u = env.unwrapped
-    tilt = getattr(u, "planned_grasp_tilt", None)
-    return torch.zeros(u.num_envs, device=u.device) if tilt is None else tilt
-
-
 def tilt_quat(tilt: float) -> np.ndarray:
     """The turn (wxyz) of a hand tilted by `tilt` about the TCP's y from straight down."""
     return axangle2quat([0.0, 1.0, 0.0], tilt)
@@ -62,10 +48,31 @@ def box_obstacles(env, margin: float = MARGIN) -> list[Obstacle]:
                      se3(world * shape.get_local_pose())) for i, shape in enumerate(walls.get_collision_shapes())]
 
 
-def grasp_offset(half_length: float) -> float:
-    """Where the hand grasps the peg, back from its centre toward its tail (m): ManiSkill's choice, far enough back
-    that the fingers stay out of the box with the head in the hole."""
+def grasp_offset(half_length):
+    """Where the library's pick-up grasps the peg, back from its centre toward its tail (m; a float or a tensor of
+    them): ManiSkill's choice, far enough back that the fingers stay out of the box with the head in the hole."""
+    if isinstance(half_length, torch.Tensor):
+        return (half_length / 2 + 0.01).clamp_min(0.05)
     return max(0.05, half_length / 2 + 0.01)
+
+
+def plan_grasp(env, tilt: float = 0.0, offset: float | None = None) -> None:
+    """Let the robot know the grasp planned this episode: the hand's tilt (rad) about the TCP's y, the fingers'
+    closing axis, from straight down, and how far back from the peg's centre toward its tail it grasps (m; None: the
+    library's own grasp, `grasp_offset`). Until a grasp is planned, the library's pick-up's: straight down."""
+    u = env.unwrapped
+    known = torch.empty(u.num_envs, 2, dtype=torch.float32, device=u.device)
+    known[:, 0] = tilt
+    known[:, 1] = grasp_offset(u.peg_half_sizes[:, 0]) if offset is None else offset
+    u.planned_grasp = known
+
+
+def planned_grasp(env) -> torch.Tensor:
+    """(B, 2) the grasp planned this episode: its tilt and its offset (see `plan_grasp`)."""
+    u = env.unwrapped
+    if getattr(u, "planned_grasp", None) is None:
+        plan_grasp(u)
+    return u.planned_grasp
 
 
 class PegScene:
@@ -133,15 +140,15 @@ class PegScene:
         return 1.0 if float(tcp_x @ self.planner_peg().to_transformation_matrix()[:3, 0]) >= 0 else -1.0
 
     def peg_in_hand(self, sign: float | None = None) -> sapien.Pose:
-        """Where the planned grasp holds the peg, in the TCP frame: across the fingers' centre, `grasp_offset` back
+        """Where the planned grasp holds the peg, in the TCP frame: across the fingers' centre, the grasp's offset back
         from its centre, its axis along the TCP's x untilted by the grasp's tilt (toward its head, sign +1, or its
         tail, -1; by default as the hand took it)."""
         sign = sign or self.head_along_tcp_x()
         # The TCP's z points down into the hand, the lying peg's z up: half a turn about the TCP's x (the peg's head
         # along it) or its y (the head the other way).
         turn = [0.0, 1.0, 0.0, 0.0] if sign > 0 else [0.0, 0.0, 1.0, 0.0]
-        straight = sapien.Pose([sign * grasp_offset(self.half_length), 0.0, 0.0], turn)
-        return sapien.Pose(q=tilt_quat(-float(planned_grasp_tilt(self.env)[0]))) * straight
+        tilt, offset = map(float, planned_grasp(self.env)[0])
+        return sapien.Pose(q=tilt_quat(-tilt)) * sapien.Pose([sign * offset, 0.0, 0.0], turn)
 
     def held_head_x(self) -> float:
         """The peg's head along the hole's axis from its centre plane (m), where the planned grasp puts it."""

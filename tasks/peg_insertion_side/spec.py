@@ -17,10 +17,11 @@ STATE_NAMES = (*ARM_JOINTS, "gripper_width")
 ACTION_NAMES = (*ARM_JOINTS, "gripper")
 CONTROL_MODE = "pd_joint_pos"
 # observation.environment_state: what the planner knows of each episode's scene: the hole's pose in the arm's base
-# frame (position m, quaternion wxyz), the peg's half-length and half-width (m), and the tilt of the grasp planned
-# (rad about the TCP's y from a hand straight down; 0 until one is planned).
+# frame (position m, quaternion wxyz), the peg's half-length and half-width (m), and the grasp planned: its tilt
+# (rad about the TCP's y from a hand straight down) and where along the peg (m back from its centre toward its tail);
+# the library's pick-up's, straight down, until one is planned.
 SCENE_NAMES = ("hole_x", "hole_y", "hole_z", "hole_qw", "hole_qx", "hole_qy", "hole_qz", "peg_half_length",
-               "peg_half_width", "grasp_tilt")
+               "peg_half_width", "grasp_tilt", "grasp_offset")
 MAX_EPISODE_STEPS = 100  # ManiSkill's default
 EPISODE_LIMIT = 300  # control steps a composed episode may take: pick, carry and two insertions (ManiSkill: 100)
 EXPERT_PHASES = ("approach", "descend", "close", "lift", "move", "align", "insert", "done")
@@ -93,8 +94,8 @@ SPEC = TaskSpec(
           "state_action": "`observation.state`: the arm's 7 joint angles and the gripper's width; `action`: its 7 "
                           "joint targets (rad) and the gripper command (-1 closed, 1 open); "
                           "`observation.environment_state`: the hole's pose in the arm's base frame (position, "
-                          "quaternion wxyz), the peg's half-length and half-width and the tilt of the grasp planned, "
-                          "as the planner knows them",
+                          "quaternion wxyz), the peg's half-length and half-width and the grasp planned (its tilt "
+                          "and offset), as the planner knows them",
           "stage": "0 pick, 1 move, 2 insert, 3 done",
           "success": "the peg's head in the hole, not past the box's far face"},
     policy_camera="hand_camera",
