@@ -107,8 +107,8 @@ SPEC = TaskSpec(
     fixed_cameras=("base_camera",),
     controller_rollouts="peg-controller-rollouts",
     corrections={"insert": "peg-insertion-dagger"},
-    # A round neither lifts nor lowers the CNN insertion, for a third of the job's time again: what fails it is a peg
-    # tilted in the fingers, which the insertion, keeping its hand's turn, cannot seat (the figures: docs/task.md).
+    # A round neither lifts nor lowers the CNN insertion, for a third of the job's time again: what fails it is not
+    # what the expert's labels teach (the figures: docs/task.md).
     dagger_rounds=0,
     episode_steps=EPISODE_LIMIT,
     # The CNN insertion seated within 36 steps whenever it did in the quick job's compositions; a longer budget only
