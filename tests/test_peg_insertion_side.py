@@ -8,16 +8,20 @@ import pytest
 import sapien
 import torch
 from conftest import run_cli
+from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from lerobot.policies.act.configuration_act import ACTConfig
 from mani_skill.utils.structs.pose import Pose
 
 from policy_composer.app.demo import Makings
 from policy_composer.app.profiles import PROFILES
 from policy_composer.data.features import read_info, read_sidecar
+from policy_composer.learning.checkpoint import CheckpointError
 from policy_composer.policies import subtasks
 from policy_composer.policies.arm import Outcome, run_activation
 from policy_composer.policies.cnn.configuration_cnn import CNNPolicyConfig
 from policy_composer.policies.cnn.train import policy_state
+from policy_composer.policies.lerobot_policy.controller import LeRobotPolicyController
 from policy_composer.policies.library import LibrarySources, build_library
 from policy_composer.tasks.base import Percept, PlanningError
 from policy_composer.tasks.peg_insertion_side import subtasks as subtasks_of_peg
@@ -345,6 +349,19 @@ def test_the_robot_knows_the_grasp_it_planned(env):
     obs, _ = env.reset(seed=5)
     assert float(obs["extra"]["scene"][0, tilt]) == 0.0
     assert float(obs["extra"]["scene"][0, offset]) == pytest.approx(own)
+
+
+def test_a_lerobot_checkpoint_of_another_scene_is_refused_by_name(env, tmp_path):
+    """A LeRobot policy trained on recordings whose scene was laid out otherwise (9 values, before the grasp planned
+    joined it) is refused with what to do, not run into a shape error inside the model."""
+    config = ACTConfig(input_features={"observation.state": PolicyFeature(FeatureType.STATE, (len(STATE_NAMES),)),
+                                       "observation.environment_state": PolicyFeature(FeatureType.ENV, (9,))},
+                       output_features={"action": PolicyFeature(FeatureType.ACTION, (8,))},
+                       pretrained_backbone_weights=None)
+    config.save_pretrained(tmp_path)
+    with pytest.raises(CheckpointError, match=rf"takes a scene of shape \(9,\), PegInsertionSide-v1 gives "
+                                              rf"\({len(SCENE_NAMES)},\): train it again"):
+        LeRobotPolicyController(env, tmp_path)
 
 
 def test_fingers_wider_than_the_peg_hold_nothing():
