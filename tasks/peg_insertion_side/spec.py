@@ -102,7 +102,10 @@ SPEC = TaskSpec(
     latent_camera="hand_camera",
     goal_camera="base_camera",
     predicate_cameras=CAMERA_NAMES,
-    demonstrations={"insert": ("peg-insertion-demos", None)},
+    # The CNN insertion learns the push, not the hold after it: once the peg is seated the expert's command drops back
+    # to where the arm is (5 frames of each demonstration, 8 mm back), which a policy adding its steps to its own
+    # command learned as "pull back" and pulled seated pegs out. Its termination ends it there instead.
+    demonstrations={"insert": ("peg-insertion-demos", (2,))},
     full_task_demos="peg-full-task-demos",
     fixed_cameras=("base_camera",),
     controller_rollouts="peg-controller-rollouts",
