@@ -27,7 +27,7 @@ from policy_composer.tasks.base import Percept, PlanningError
 from policy_composer.tasks.peg_insertion_side import subtasks as subtasks_of_peg
 from policy_composer.tasks.peg_insertion_side.env import CAMERA_NAMES, PREDICATES, make_env, predicates, strict_success
 from policy_composer.tasks.peg_insertion_side.kinematics import HAND_IN_HOLE, hand_in_hole, rule_out
-from policy_composer.tasks.peg_insertion_side.scene import EMPTY_HAND_GAP, PegScene, pose0
+from policy_composer.tasks.peg_insertion_side.scene import EMPTY_HAND_GAP, PegScene, grasp_offset, pose0
 from policy_composer.tasks.peg_insertion_side.spec import SCENE_NAMES, STATE_NAMES
 from policy_composer.tasks.peg_insertion_side.subtasks import INSERT_STEP, SEATED, SUBTASKS
 from policy_composer.tasks.peg_insertion_side.task import labels
@@ -223,6 +223,12 @@ def test_the_recorder_records_the_peg_tasks_expert_from_both_cameras(tmp_path):
     assert refused.returncode == 2 and "needs peg-insertion-demos" in refused.stderr, refused.stderr[-2000:]
 
 
+def _planned_head_error(obs, u) -> np.ndarray:
+    """Where the hand's kinematics put the peg's head, less where it is, in the hole's frame (m)."""
+    known = hand_in_hole(obs["extra"]["state"].numpy(), obs["extra"]["scene"].numpy())[0]
+    return known[6:9] - ((u.box_hole_pose.inv() * u.peg.pose).p[0].numpy() + [float(u.peg_half_sizes[0, 0]), 0, 0])
+
+
 def test_the_pre_insertion_start_holds_the_peg_in_front_of_the_hole_at_step_zero(env):
     """The insertion's start state: the reset option carries the peg to the hole unobserved, and the episode starts
     there (step 0) with the peg grasped in front of the box, its carry's residual error left for the insertion; the
@@ -243,8 +249,7 @@ def test_the_pre_insertion_start_holds_the_peg_in_front_of_the_hole_at_step_zero
     assert known[0] < -float(u.peg_half_sizes[0, 0]) and np.linalg.norm(known[1:3]) < 0.01
     # The head where the planned grasp holds the peg: in front of the box's near face, within the hole's radius of its
     # axis and a few mm of the true head (the carry's residual error and how the peg sits in the fingers).
-    head = (u.box_hole_pose.inv() * u.peg.pose).p[0].numpy() + [float(u.peg_half_sizes[0, 0]), 0, 0]
-    assert np.linalg.norm(known[6:9] - head) < 0.02, (known[6:9], head)
+    assert np.linalg.norm(_planned_head_error(obs, u)) < 0.02, _planned_head_error(obs, u)
     assert -float(u.peg_half_sizes[0, 0]) - 0.05 < known[6] < -float(u.peg_half_sizes[0, 0])
     assert known[9] == pytest.approx(known[6] + float(u.peg_half_sizes[0, 0])) and -0.002 > known[10] > -0.005
     with pytest.raises(ValueError, match="starts at 'table' or 'pre_insertion'"):
@@ -315,12 +320,6 @@ def test_a_learned_insertion_holds_the_peg_along_the_holes_axis_as_planned(env):
     assert np.allclose(peg, hole, atol=1e-6)  # the planned peg lies as the hole does, head first
 
 
-def _planned_head_error(obs, u) -> np.ndarray:
-    """Where the hand's kinematics put the peg's head, less where it is, in the hole's frame (m)."""
-    known = hand_in_hole(obs["extra"]["state"].numpy(), obs["extra"]["scene"].numpy())[0]
-    return known[6:9] - ((u.box_hole_pose.inv() * u.peg.pose).p[0].numpy() + [float(u.peg_half_sizes[0, 0]), 0, 0])
-
-
 def test_the_robot_knows_the_grasp_it_planned(env):
     """Where a hand straight down would meet the box with its forearm, the expert grasps tilted back 0.3 rad (seed
     3010); where the library's grasp would not reach, 17 mm farther back along the peg (seed 5). The scene the robot
@@ -343,7 +342,7 @@ def test_the_robot_knows_the_grasp_it_planned(env):
     hand = pose0(u.agent.tcp.pose).to_transformation_matrix()[:3, :3]
     assert (hand @ turn)[:, 0] @ true[:, 0] > np.cos(np.radians(2.0)) > hand[:, 0] @ true[:, 0] + 0.03
     obs, _ = env.reset(seed=5, options={"start": "pre_insertion"})
-    own = float(np.clip(float(u.peg_half_sizes[0, 0]) / 2 + 0.01, 0.05, None))  # the library's pick-up's grasp
+    own = grasp_offset(float(u.peg_half_sizes[0, 0]))  # the library's pick-up's grasp
     assert float(obs["extra"]["scene"][0, offset]) > own + 0.015 and float(obs["extra"]["scene"][0, tilt]) == 0.0
     assert np.linalg.norm(_planned_head_error(obs, u)) < 0.005
     obs, _ = env.reset(seed=5)

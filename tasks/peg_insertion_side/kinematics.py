@@ -42,9 +42,8 @@ def hand_in_hole(state: np.ndarray, scene: np.ndarray) -> np.ndarray:
     state, scene = np.atleast_2d(state), np.atleast_2d(scene)
     p, R = _forward_kinematics().tcp(state[:, :7])
     out = np.empty((len(state), len(HAND_IN_HOLE)))
-    for i, (known, tcp, tcp_R) in enumerate(zip(scene, p, R)):
+    for i, (known, tcp, hand) in enumerate(zip(scene, p, R @ grasp_turn(scene))):
         hole_R, half_length = quat2mat(known[3:7] / np.linalg.norm(known[3:7])), known[7]
-        hand = tcp_R @ grasp_turn(known)[0]
         out[i, :3] = hole_R.T @ (tcp - known[:3])
         out[i, 3:6] = hand.T @ hole_R[:, 0]
         toward_hole = 1.0 if out[i, 3] >= 0 else -1.0
