@@ -13,6 +13,7 @@ import subprocess
 import sys
 import threading
 import time
+from dataclasses import replace
 from html import unescape
 from pathlib import Path
 
@@ -21,7 +22,7 @@ from conftest import run_cli
 
 from policy_composer.app import demo
 from policy_composer.app.demo import _train_cnn
-from policy_composer.app.pipeline import MARKER, Stage, StageRecord, run_stages
+from policy_composer.app.pipeline import MARKER, Stage, StageRecord, run_stages, stage_key
 from policy_composer.app.profiles import PROFILES
 from policy_composer.app.report import _header
 from policy_composer.data.interrupt import flag_interrupts
@@ -125,6 +126,28 @@ def test_a_ctrl_c_that_a_stage_swallows_still_stops_the_run_after_that_stage(tmp
 def test_a_stage_reading_a_missing_stage_is_refused(tmp_path):
     with pytest.raises(ValueError, match="reads \\['record'\\]"):
         run_stages([Stage("train", "train", {}, lambda out, i: {}, inputs=("record",))], tmp_path)
+
+
+@pytest.mark.parametrize("task", [DEFAULT_TASK, "peg-insertion-side"])
+def test_the_cnn_policies_are_trained_again_when_their_task_picks_other_frames_of_the_same_recording(task,
+                                                                                                     monkeypatch):
+    """Which stages of its demonstrations a CNN policy learns from is the task spec's, not the recording's: a change
+    there keys the training stages (and the DAgger rounds') anew, the recordings not."""
+    def keys() -> dict[str, str]:
+        made = demo.stages(PROFILES["quick"], task=task)
+        recorded: dict[str, str] = {}
+        for stage in made:  # the stages in order, as run_stages keys them
+            recorded[stage.name] = stage_key(stage, {n: recorded[n] for n in stage.inputs})
+        return recorded
+
+    before, spec = keys(), get_spec(task)
+    recipe, _ = spec.demonstrations["insert"]
+    changed = replace(spec, demonstrations={**spec.demonstrations, "insert": (recipe, (1, 2))})
+    monkeypatch.setattr(demo, "get_spec", lambda name: changed if name == task else get_spec(name))
+    after = keys()
+    trained = {n for n in before if n in ("cnn", demo.BC_STAGE) or n.startswith("dagger-cnn")}
+    assert trained and all(after[n] != before[n] for n in trained)
+    assert all(after[n] == before[n] for n in before if n.endswith("-demos"))
 
 
 def test_an_interrupted_cnn_training_stage_keeps_the_policies_it_finished(insertion_demos, transport_demos,

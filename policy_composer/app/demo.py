@@ -133,6 +133,11 @@ class Makings:
             env=env_key(task, p.resolution), kinematics=description.extra_proprioception,
             library={"library_revision": LIBRARY_REVISION, "controllers": all_names(LibrarySources(task=task))})
 
+    def demonstrations(self, subtasks) -> dict:
+        """In the key of a stage that trains the CNN policies of `subtasks`: the recipe and the stages of it each
+        learns from (the task's spec picks them; the recording's key does not say which)."""
+        return {s: self.spec.demonstrations[s] for s in subtasks}
+
     def recording(self, recipe: Recipe, episodes: int) -> dict:
         """The key of a stage that records `episodes` of `recipe`."""
         return {"recipe": asdict(recipe), "episodes": episodes, "features_revision": FEATURES_REVISION, **self.env}
@@ -167,7 +172,8 @@ def stages(p: Profile, workers: int = 1, task: str = DEFAULT_TASK) -> list[Stage
               partial(_fit_dmp, episodes=p.dmp_episodes, task=task, resolution=p.resolution)),
         Stage(BC_STAGE if dagger else "cnn",
               f"train the CNN policies on the demonstrations: {', '.join(m.cnn)} ({p.cnn_training(tuple(m.cnn))})",
-              {**{s: asdict(c) for s, c in m.cnn.items()}, "kinematics": m.kinematics},
+              {**{s: asdict(c) for s, c in m.cnn.items()}, "kinematics": m.kinematics,
+               "demonstrations": m.demonstrations(m.cnn)},
               partial(_train_cnn, configs=m.cnn, spec=m.spec), inputs=demos, resumable=True),
         *dagger,  # the CNN policies' DAgger rounds, the last of which trains stage "cnn"
         # The world model: learned from the controllers' rollouts and the demonstrations.
@@ -284,7 +290,8 @@ def _dagger_rounds(p: Profile, m: Makings, workers: int) -> list[Stage]:
         datasets = {s: (stage_name(m.spec.demonstrations[s][0]), *rollouts[s]) for s in m.dagger}
         stages.append(Stage(trained, f"train the CNN {', '.join(m.dagger)} policies on their demonstrations and {k} "
                             f"round(s) of the expert's corrections ({p.dagger_epochs} epochs)",
-                            {s: asdict(c) for s, c in configs.items()},
+                            {**{s: asdict(c) for s, c in configs.items()},
+                             "demonstrations": m.demonstrations(configs)},
                             partial(_train_dagger, configs=configs, policy=policy, datasets=datasets),
                             inputs=(policy, *dict.fromkeys(n for d in datasets.values() for n in d)),
                             resumable=True))
