@@ -107,6 +107,7 @@ class PredicateConfig(TrainingConfig):
     weight_decay: float = 1e-6
     batch_size: int = option(128, "minibatch size", minimum=1)
     epochs: int = option(6, "predicate training epochs", minimum=1)
+    lr_decay: bool = True  # the step size decays to zero over the epochs (`cosine_decay`)
 
     def __post_init__(self):
         super().__post_init__()

@@ -20,7 +20,7 @@ from policy_composer.data.features import image_key
 from policy_composer.data.frames import random_shift, to_model_image
 from policy_composer.learning.checkpoint import CheckpointError, check_out, finished, load_checkpoint, save_checkpoint
 from policy_composer.learning.layers import image_encoder
-from policy_composer.learning.trainer import Fit, train_model
+from policy_composer.learning.trainer import Fit, cosine_decay, train_model
 from policy_composer.policies.senses import THRESHOLD, CachedSenses, Percept
 from policy_composer.selector.configuration import PredicateConfig
 from policy_composer.tasks.base import TaskDescription
@@ -95,7 +95,9 @@ def train_predicate(images: torch.Tensor, state: torch.Tensor, labels: torch.Ten
             model(random_shift(images[idx].float() / 255.0, config.shift, generator), state[idx].float()),
             target[idx]))
 
-    return train_model(config, build, f"training predicate {config.predicate}", progress=progress, postfix="bce")
+    # Without the decay the held-out misses of one classifier ranged from 0.3% to 6% with the seed alone.
+    return train_model(config, build, f"training predicate {config.predicate}", progress=progress,
+                       schedule=cosine_decay(config.epochs) if config.lr_decay else None, postfix="bce")
 
 
 def predicate_metrics(probability: torch.Tensor, labels: torch.Tensor) -> dict:

@@ -25,7 +25,7 @@ from policy_composer.learning.checkpoint import (
     model_writer,
     save_checkpoint,
 )
-from policy_composer.learning.trainer import Fit, train_model
+from policy_composer.learning.trainer import Fit, cosine_decay, train_model
 from policy_composer.policies.cnn.configuration_cnn import PROPRIOCEPTION, SUBTASKS, CNNPolicyConfig
 from policy_composer.policies.cnn.modeling_cnn import CNNPolicy
 from policy_composer.tasks.panda import PandaForwardKinematics
@@ -144,10 +144,8 @@ def _train(root, config: CNNPolicyConfig, out, progress: bool, data) -> tuple[CN
         return Fit(model, n, batch_loss, log={"dataset": roots[0] if len(roots) == 1 else roots, "frames": n},
                    snapshot={"datasets": roots, "frames": n})
 
-    # Cosine decay to zero: a mixture density network's loss spikes now and then, and the last epoch's
-    # weights are the ones kept, so end on small steps.
-    return train_model(config, build, "training cnn policy", out, progress,
-                       schedule=lambda opt: torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=config.epochs),
+    # A mixture density network's loss spikes now and then: end on small steps.
+    return train_model(config, build, "training cnn policy", out, progress, schedule=cosine_decay(config.epochs),
                        postfix="nll")
 
 

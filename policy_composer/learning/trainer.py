@@ -33,6 +33,12 @@ class Fit:
     snapshot: dict[str, Any] | None = None
 
 
+def cosine_decay(epochs: int) -> Callable[[torch.optim.Optimizer], Any]:
+    """A `schedule` for `train_model`: the step size decays to zero over the epochs, so that the last epoch's
+    weights, the ones kept, come from small steps rather than wherever one last large step left them."""
+    return lambda optimizer: torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=epochs)
+
+
 def train_model(config, build: Callable[[torch.Generator], Fit], desc: str, out: str | Path | None = None,
                 progress: bool = True, schedule: Callable[[torch.optim.Optimizer], Any] | None = None,
                 postfix: str = "loss", digits: int = 3,

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import time
-from dataclasses import replace
 
 from policy_composer.app.arguments import add_config_options, at_least, config_from, names
 from policy_composer.app.cli.options import WORLD, dataset_path, env_options, training_threads
@@ -79,8 +78,13 @@ def cmd_train_predicates(args: argparse.Namespace) -> int:
     from policy_composer.selector.train import train_predicate_models
 
     training_threads(args.threads)
-    config = replace(config_from(args, PredicateConfig), cameras=args.cameras)
-    for name, figures in train_predicate_models(args.dataset, args.out, config).items():
+    task = args.task or (dataset_spec(args.dataset[0]).name if args.dataset else DEFAULT_TASK)
+    config = config_from(args, PredicateConfig, task=task, **({"cameras": args.cameras} if args.cameras else {}))
+    spec = get_spec(task)
+    labelled = (spec.controller_rollouts, spec.full_task_demos, spec.demonstrations["insert"][0],
+                spec.corrections.get("insert"))
+    datasets = args.dataset or [dataset_path(name) for name in labelled if name]
+    for name, figures in train_predicate_models(datasets, args.out, config).items():
         print(f"trained predicate {name} in {figures['seconds']:.0f} s: held-out accuracy {figures['accuracy']:.3f}, "
               f"false positives {figures['false_positive_rate']:.3f} ({figures['frames']} frames, "
               f"{figures['positives']} positive)")
@@ -136,11 +140,11 @@ def add_commands(sub) -> None:
     tr_pred = tr_sub.add_parser("predicates", help="one classifier per task predicate (gear grasped, on the peg, "
                                 "seated, ...): what the controllers sense")
     tr_pred.add_argument("--dataset", nargs="+",
-                         default=[dataset_path(d) for d in ("gear-controller-rollouts", "gear-full-task-demos",
-                                                            "gear-insertion-demos", "gear-insertion-dagger")],
-                         help="labelled recordings with the head and left forearm cameras (default: the controller "
-                              "rollouts, the full-task and insertion demos, the insertion's DAgger rollouts)")
-    tr_pred.add_argument("--cameras", type=names, default=",".join(PredicateConfig.cameras))
+                         help="labelled recordings with the cameras the classifiers read (default: the task's "
+                              "controller rollouts, full-task and insertion demos and the insertion's DAgger rollouts)")
+    tr_pred.add_argument("--task", choices=tuple(TASKS), help="the task whose predicates they are (default: the one "
+                         f"the first dataset was recorded in, else {DEFAULT_TASK})")
+    tr_pred.add_argument("--cameras", type=names, help="comma-separated (default: the task's predicate cameras)")
     add_config_options(tr_pred, PredicateConfig, {"epochs": "epochs", "image_size": "image-size", "seed": "seed"})
     tr_pred.add_argument("--threads", type=at_least(1), default=2)
     tr_pred.add_argument("--out", default=WORLD, help="the world-model folder")
