@@ -3,6 +3,8 @@ strict success refusing a peg pushed past the box (ManiSkill issue 1391)."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import sapien
@@ -193,9 +195,10 @@ def test_a_peg_sensed_in_the_hole_is_in_no_initiation_set(grasped, at_hole):
 def test_the_recorder_records_the_peg_tasks_expert_from_both_cameras(tmp_path):
     """The same recording path as the gear's: a recipe of the peg task, its expert, its two cameras, its 8-D state and
     action and its predicates, into a LeRobot dataset that LeRobot loads; `--clearance`, a setting the task does not
-    have, is refused in one line, and so is training the insertion's policy on it (the task read from the dataset)."""
+    have, is refused in one line, and so is training the insertion's policy on it (the task read from the dataset);
+    the task's predicate classifiers train on it with the task's cameras."""
     root = tmp_path / "peg"
-    result = run_cli("record", "peg-full-task-demos", "--episodes", "1", "--resolution", "32", "--root", str(root),
+    result = run_cli("record", "peg-full-task-demos", "--episodes", "2", "--resolution", "32", "--root", str(root),
                      cwd=tmp_path)
     assert result.returncode == 0, result.stderr[-2000:]
     info = read_info(root)
@@ -206,14 +209,16 @@ def test_the_recorder_records_the_peg_tasks_expert_from_both_cameras(tmp_path):
     sidecar = read_sidecar(root)
     assert sidecar["task_name"] == "peg-insertion-side" and sidecar["episodes"][0]["success"]
     frames = LeRobotDataset("local/peg", root=root)
-    assert frames.num_episodes == 1 and frames[0]["observation.images.hand_camera"].shape == (3, 32, 32)
+    assert frames.num_episodes == 2 and frames[0]["observation.images.hand_camera"].shape == (3, 32, 32)
     # The recipe's hold_steps: the episode ends with the peg seated for that many frames and more, so the recordings
     # show the goal reached.
     seated = list(PREDICATES).index("peg_seated")
     last = [bool(frames[len(frames) - 1 - k]["predicates"][seated]) for k in range(5)]
     assert all(last) and not frames[0]["predicates"][seated]
-    # The scene the robot knows is the box's, which stays put: the same hole pose in every frame, a unit quaternion.
-    scene = torch.stack([frames[i]["observation.environment_state"] for i in range(len(frames))])
+    # The scene the robot knows is the box's, which stays put: the same hole pose in every frame of an episode, a
+    # unit quaternion.
+    first = [i for i in range(len(frames)) if int(frames[i]["episode_index"]) == 0]
+    scene = torch.stack([frames[i]["observation.environment_state"] for i in first])
     assert torch.allclose(scene, scene[:1].expand_as(scene)) and abs(float(scene[0, 3:7].norm()) - 1) < 1e-5
     refused = run_cli("record", "peg-full-task-demos", "--clearance", "2", "--root", str(tmp_path / "no"),
                       cwd=tmp_path)
@@ -221,6 +226,12 @@ def test_the_recorder_records_the_peg_tasks_expert_from_both_cameras(tmp_path):
     # Training reads the task from the dataset: these are the peg's full-task demonstrations, not its insertion's.
     refused = run_cli("train", "policy", "--dataset", str(root), "--out", str(tmp_path / "cnn"), cwd=tmp_path)
     assert refused.returncode == 2 and "needs peg-insertion-demos" in refused.stderr, refused.stderr[-2000:]
+    world = tmp_path / "world"
+    trained = run_cli("train", "predicates", "--dataset", str(root), "--epochs", "1", "--image-size", "32", "--out",
+                      str(world), cwd=tmp_path)
+    assert trained.returncode == 0, trained.stderr[-2000:]
+    config = json.loads((world / "predicates" / "peg_at_hole" / "config.json").read_text())
+    assert config["task"] == "peg-insertion-side" and config["cameras"] == list(CAMERA_NAMES)
 
 
 def _planned_head_error(obs, u) -> np.ndarray:
