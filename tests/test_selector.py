@@ -46,6 +46,7 @@ from policy_composer.selector.evaluate import evaluate_goal_scores
 from policy_composer.selector.goal_score import LatentGoalScoreModel, goal_score_metrics
 from policy_composer.selector.predicates import (
     held_out,
+    load_predicate,
     load_predicates,
     predicate_metrics,
     proprioception,
@@ -428,6 +429,20 @@ def test_a_composed_episode_with_learned_senses_reads_no_truth(world):
         assert first["senses"] == "learned" and set(first["sensed"]) == set(model.predicates), first
         assert "learned p=" in library["mp_pick"].describe(env.unwrapped.observe())
     env.close()
+
+
+def test_a_classifier_saved_before_the_step_size_decayed_still_loads_as_what_it_was(world, tmp_path):
+    """A world model's classifiers trained before `lr_decay` existed compose as before: their config reads as the
+    constant step they were trained with; a field the config never had is still refused."""
+    old = tmp_path / "gear_seated"
+    shutil.copytree(world[0] / "predicates" / "gear_seated", old)
+    config = json.loads((old / "config.json").read_text())
+    del config["lr_decay"]
+    (old / "config.json").write_text(json.dumps(config))
+    assert load_predicate(old).config.lr_decay is False
+    (old / "config.json").write_text(json.dumps({**config, "ensemble": 3}))
+    with pytest.raises(CheckpointError, match=r"fields \['ensemble'\] differ"):
+        load_predicate(old)
 
 
 def test_each_predicate_is_judged_on_held_out_episodes(world, controller_rollouts, full_task_demos):

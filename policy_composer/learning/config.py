@@ -33,7 +33,7 @@ def check_options(config: Any) -> None:
 
 
 # Fields a checkpoint's config may lack, saved before the field existed, and the value every such checkpoint had.
-ADDED_FIELDS = {"task": DEFAULT_TASK}
+ADDED_FIELDS = {"task": DEFAULT_TASK, "lr_decay": False}
 
 
 def refuse(message: str) -> NoReturn:
