@@ -217,8 +217,9 @@ def test_the_recorder_records_the_peg_tasks_expert_from_both_cameras(tmp_path):
     assert all(last) and not frames[0]["predicates"][seated]
     # The scene the robot knows is the box's, which stays put: the same hole pose in every frame of an episode, a
     # unit quaternion.
-    first = [i for i in range(len(frames)) if int(frames[i]["episode_index"]) == 0]
-    scene = torch.stack([frames[i]["observation.environment_state"] for i in first])
+    columns = frames.hf_dataset  # the frames' non-image columns, no video decoded
+    first = np.asarray(columns["episode_index"]) == 0
+    scene = torch.as_tensor(np.stack(columns["observation.environment_state"])[first])
     assert torch.allclose(scene, scene[:1].expand_as(scene)) and abs(float(scene[0, 3:7].norm()) - 1) < 1e-5
     refused = run_cli("record", "peg-full-task-demos", "--clearance", "2", "--root", str(tmp_path / "no"),
                       cwd=tmp_path)
