@@ -3,7 +3,8 @@
 **What it does:** the Panda picks the peg up from above, behind its centre (ManiSkill's grasp point, so the fingers
 stay clear of the box while the head goes in), lifts it, carries it along a collision-free joint path to the
 pre-insertion pose (the peg's axis on the hole's, its head `pre_insertion` in front of the box's near face), corrects
-the residual error there, pushes the peg along the hole's axis until the strict success holds, and holds still.
+the residual error there, pushes the peg along the hole's axis until the strict success holds and on to the depth
+the library's insertions aim at, and holds still.
 
 **Why the grasp is chosen:** what the hand does at the box is fixed by the grasp, so each episode's grasp is the
 first of a short list (hand straight down, then tilted about the closing axis, nearer or farther from the peg's
@@ -24,8 +25,9 @@ cylinder around it, and time-parameterised to the Panda's velocity limits. A str
 elbow and the peg's tail about and can sweep the peg through the box's edge.
 
 **Why it stops:** ManiSkill's success has no bound on the far side (a peg pushed through the box counts); the
-expert stops pushing the step the strict success (`env.strict_success`) holds, so the head is never past the box's
-far face.
+expert pushes on from the step the strict success (`env.strict_success`) holds to a depth (`seat_depth`) far short
+of the box's far face, so the head is never past it; so deep, because the predicate classifiers learn "seated" from
+these recordings, and the library's insertions leave the peg anywhere between ManiSkill's bound and that depth.
 
 **Action:** ``pd_joint_pos``, 8-D: the 7 arm joint targets (rad, absolute, not normalised) and the gripper in
 [-1, 1], which ManiSkill maps linearly onto a target of each (mimicked) finger joint in [-0.01, 0.04] m: +1 opens
@@ -53,6 +55,7 @@ from policy_composer.tasks.panda import GRIPPER_CLOSED, GRIPPER_OPEN, JOINT_HIGH
 from policy_composer.tasks.peg_insertion_side.flags import HOLE_ENTRY, box_half_depth, strict_success
 from policy_composer.tasks.peg_insertion_side.scene import box_obstacles, plan_grasp, pose0, tilt_quat
 from policy_composer.tasks.peg_insertion_side.spec import EXPERT_PHASES  # noqa: F401  (its phases, in order)
+from policy_composer.tasks.peg_insertion_side.subtasks import SEATED
 from policy_composer.tasks.scene import HeldObject, table_obstacle
 
 HELD_MARGIN = 0.004  # around the held peg, the wrist camera and the box's walls in the collision checks (m)
@@ -89,6 +92,11 @@ class ExpertConfig:
     # The peg's target leads its measured head along the hole's axis by at most this many insert steps (a peg caught
     # on the hole's rim is not rammed harder and harder).
     insert_lead: float = 3.0
+    # Once the peg is seated, the push goes on until its head is this far past the hole's centre plane (m), as deep as
+    # the library's insertions aim it, or for at most seat_steps control steps more: the recordings then show a seated
+    # peg over the depths those insertions leave it at, not only at ManiSkill's bound, where they used to stop.
+    seat_depth: float = SEATED
+    seat_steps: int = 8
     # DART (Laskey et al. 2017): while aligning and inserting, the executed TCP target is off the expert's own by a
     # slowly drifting offset of this standard deviation per axis (m), which the expert does not know of; it corrects
     # the peg that strays with it, and the recorded action is its own command.
@@ -237,6 +245,7 @@ class PegInsertionSideExpert:
         self._q_seed = self._qpos()
         self._cmd = self._tcp()
         self.phase, self._timer, self._gripper = "approach", 0, GRIPPER_OPEN
+        self._seated_at: int | None = None  # the control step the peg was first seated at
         # A Cartesian motion has arrived when its command has (the expert's own), or, stepping from the measured hand,
         # when the hand is within settle_tol: the PD arm sags a few mm under the held peg, short of its target.
         self._arrived = cfg.settle_tol if cfg.from_arm else 1e-3
@@ -411,7 +420,7 @@ class PegInsertionSideExpert:
         peg_in_hand = grasp.inv() * self._peg()
         pre_x = -self._box_half_depth - cfg.pre_insertion
         q_pre = None
-        seated = HOLE_ENTRY + 2 * cfg.insert_step  # as far in as the push goes before it stops, with some lag
+        seated = HOLE_ENTRY + 2 * cfg.insert_step  # as far in as the push must go to seat the peg, with some lag
         for head_x in np.linspace(pre_x, seated, 5):  # the pre-insertion pose, then the insertion
             if not ok:
                 return None
@@ -468,11 +477,18 @@ class PegInsertionSideExpert:
         return np.concatenate([q[:7], action[7:]]) if ok else action
 
     def _check_seated(self) -> None:
-        """Stop pushing the moment the head is seated (the strict success, read while aligning and inserting):
-        phase done, the arm's target the peg where it is, with no push left in it."""
-        if self.phase in ("align", "insert") and bool(strict_success(self.env)[0]):
+        """Stop pushing once the head is seated (the strict success, read while aligning and inserting) and at
+        seat_depth, or seat_steps control steps after it was first seated: phase done, the arm's target the peg where
+        it is, with no push left in it."""
+        if self.phase not in ("align", "insert") or not bool(strict_success(self.env)[0]):
+            return
+        head_x, step = float(self.head_in_hole()[0]), int(self.env.elapsed_steps[0])
+        if self.phase == "align":
+            self.phase, self._timer, self._push_x = "insert", 0, head_x
+        self._seated_at = step if self._seated_at is None else self._seated_at
+        if head_x >= self.config.seat_depth or step - self._seated_at >= self.config.seat_steps:
             self.phase = "done"
-            self._ik_joint_targets(self._move_peg(self.peg_goal(float(self.head_in_hole()[0]))))
+            self._ik_joint_targets(self._move_peg(self.peg_goal(head_x)))
 
     @property
     def done(self) -> bool:
