@@ -94,7 +94,7 @@ class ExpertConfig:
     insert_lead: float = 3.0
     # Once the peg is seated, the push goes on until its head is this far past the hole's centre plane (m), as deep as
     # the library's insertions aim it, or for at most seat_steps control steps more: the recordings then show a seated
-    # peg over the depths those insertions leave it at, not only at ManiSkill's bound, where they used to stop.
+    # peg over the depths those insertions leave it at, not only at ManiSkill's bound.
     seat_depth: float = SEATED
     seat_steps: int = 8
     # DART (Laskey et al. 2017): while aligning and inserting, the executed TCP target is off the expert's own by a
