@@ -306,8 +306,7 @@ class PegInsertionSideExpert:
             goal = self.peg_goal(-self._box_half_depth - cfg.pre_insertion)
             target = self._move_peg(goal)
             if self._axis_error(goal) < cfg.align_tol or self._timer >= cfg.align_steps:
-                self.phase, self._timer = "insert", 0
-                self._push_x = float(self.head_in_hole()[0])
+                self._begin_insert()
         elif self.phase == "insert":
             target = self._insert_target()
         action = np.empty(8)
@@ -327,6 +326,10 @@ class PegInsertionSideExpert:
         peg = self._peg()
         ends = [sapien.Pose([s * self._half_length, 0.0, 0.0]) for s in (1.0, -1.0)]
         return max(float(np.linalg.norm((peg * e).p - (goal * e).p)) for e in ends)
+
+    def _begin_insert(self) -> None:
+        """Phase insert, the push starting from where the head is."""
+        self.phase, self._timer, self._push_x = "insert", 0, float(self.head_in_hole()[0])
 
     def _insert_target(self) -> sapien.Pose:
         """The peg's target on the hole's axis, its head advanced by insert_step a control step, never more than
@@ -482,9 +485,9 @@ class PegInsertionSideExpert:
         it is, with no push left in it."""
         if self.phase not in ("align", "insert") or not bool(strict_success(self.env)[0]):
             return
-        head_x, step = float(self.head_in_hole()[0]), int(self.env.elapsed_steps[0])
         if self.phase == "align":
-            self.phase, self._timer, self._push_x = "insert", 0, head_x
+            self._begin_insert()
+        head_x, step = float(self.head_in_hole()[0]), int(self.env.elapsed_steps[0])
         self._seated_at = step if self._seated_at is None else self._seated_at
         if head_x >= self.config.seat_depth or step - self._seated_at >= self.config.seat_steps:
             self.phase = "done"
